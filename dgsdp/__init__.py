@@ -1,0 +1,3 @@
+"""dgsdp: music- and style-conditioned dance generation (EDGE and DGSDP as one experiment framework)."""
+
+__version__ = "0.1.0"
