@@ -1,0 +1,21 @@
+"""Datasets: the AIST++ reader, the synthetic AIST++ generator, and the training/evaluation windows."""
+
+from dgsdp.data.aistpp import (
+    SequenceName,
+    load_motion_pkl,
+    music_path,
+    music_tempo_bpm,
+    parse_name,
+    process_motion,
+    read_split,
+)
+
+__all__ = [
+    "SequenceName",
+    "load_motion_pkl",
+    "music_path",
+    "music_tempo_bpm",
+    "parse_name",
+    "process_motion",
+    "read_split",
+]
