@@ -1,0 +1,140 @@
+"""Common interface of the audio encoders: waveform in, one feature row per 30 FPS motion frame out.
+
+Every encoder works on whole songs of any length; models with a limited context chunk internally. Rows are
+aligned so that row ``i`` describes the audio at time ``i / fps`` seconds.
+
+Short and silent audio: anything at least one motion frame long (``1 / fps`` seconds) yields features
+(silence gives valid, beat-free features); an empty waveform or one shorter than a frame raises
+:class:`AudioError`, because it cannot describe even one motion frame.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+from typing import Any, ClassVar
+
+import librosa
+import numpy as np
+
+from dgsdp.errors import AudioError
+
+
+def default_n_frames(n_samples: int, sample_rate: int, fps: int) -> int:
+    """Motion frames covered by ``n_samples`` of audio: ``floor(duration_seconds * fps)``."""
+    # Integer arithmetic: floor(n * fps / sr) without float round-off on exact multiples.
+    return (int(n_samples) * int(fps)) // int(sample_rate)
+
+
+def fit_frames(features: np.ndarray, n_frames: int) -> np.ndarray:
+    """Truncate ``(T, D)`` features to ``n_frames`` rows, or pad by repeating the last row (edge padding)."""
+    if n_frames < 0:
+        raise ValueError(f"n_frames must be >= 0, got {n_frames}")
+    t = features.shape[0]
+    if t >= n_frames:
+        return features[:n_frames]
+    if t == 0:
+        raise AudioError("The encoder produced no feature frames; the audio is too short to encode.")
+    pad = np.repeat(features[-1:], n_frames - t, axis=0)
+    return np.concatenate([features, pad], axis=0)
+
+
+def resample_frames(features: np.ndarray, rate_hz: float, fps: float, res_type: str = "fft") -> np.ndarray:
+    """Resample ``(T, D)`` frame features from ``rate_hz`` to ``fps`` along time with librosa.
+
+    ``res_type="fft"`` is librosa's FFT (band-limited) resampling, as EDGE uses for Jukebox features;
+    ``"soxr_hq"`` is an anti-aliased polyphase filter with less ringing at the ends. Output length is
+    ``ceil(T * fps / rate_hz)``.
+    """
+    if features.ndim != 2:
+        raise ValueError(f"expected (T, D) features, got shape {features.shape}")
+    if math.isclose(rate_hz, fps):
+        return features.astype(np.float32, copy=False)
+    out = librosa.resample(
+        np.ascontiguousarray(features.T, dtype=np.float32),
+        orig_sr=float(rate_hz),
+        target_sr=float(fps),
+        res_type=res_type,
+        axis=-1,
+    )
+    return np.ascontiguousarray(out.T, dtype=np.float32)
+
+
+def resolve_device(device: str) -> str:
+    """``"auto"`` -> ``"cuda"`` when a GPU is visible, else ``"cpu"``; other values pass through."""
+    if device == "auto":
+        import torch
+
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    return str(device)
+
+
+class AudioEncoder(abc.ABC):
+    """Base class of the interchangeable audio encoders (librosa, Encodec, Jukebox).
+
+    Subclasses set ``name``, ``feature_dim`` and ``sample_rate`` (the rate they want) and implement
+    :meth:`_encode`. ``uses_music_id`` tells the feature cache that ``music_id`` changes the output.
+    """
+
+    name: ClassVar[str] = "base"
+    fps: int = 30
+    feature_dim: int
+    sample_rate: int
+    uses_music_id: ClassVar[bool] = False
+
+    @abc.abstractmethod
+    def settings(self) -> dict[str, Any]:
+        """Every setting that changes the output (JSON-serialisable), used for cache keys."""
+
+    @abc.abstractmethod
+    def _encode(self, waveform: np.ndarray, music_id: str | None) -> np.ndarray:
+        """Encode mono audio at ``self.sample_rate``: ``(samples,)`` -> ``(T, feature_dim)`` at ``fps``.
+
+        ``T`` may differ from the requested frame count by a few rows; :meth:`encode` fits it.
+        """
+
+    def music_id_key(self, music_id: str | None) -> str:
+        """The part of ``music_id`` that changes this encoder's output, for cache keys ("" if none)."""
+        return ""
+
+    def encode(
+        self,
+        waveform: np.ndarray,
+        sample_rate: int,
+        n_frames: int | None = None,
+        music_id: str | None = None,
+    ) -> np.ndarray:
+        """Features ``(n_frames, feature_dim)`` float32; row ``i`` covers time ``i / fps`` s.
+
+        ``waveform`` is ``(samples,)`` or ``(channels, samples)`` at ``sample_rate`` Hz (resampled and
+        down-mixed here). ``n_frames`` defaults to ``floor(duration_seconds * fps)``; the features are
+        truncated or edge-padded to it.
+        """
+        waveform = np.asarray(waveform, dtype=np.float32)
+        if waveform.ndim == 2:
+            waveform = waveform.mean(axis=0)
+        if waveform.ndim != 1:
+            raise AudioError(f"Expected a (samples,) or (channels, samples) waveform, got {waveform.shape}.")
+        if not np.all(np.isfinite(waveform)):
+            raise AudioError("The waveform contains NaN or infinite samples; check the audio file.")
+        min_samples = math.ceil(sample_rate / self.fps)
+        if waveform.shape[0] < min_samples:
+            raise AudioError(
+                f"Audio is too short for the {self.name} encoder: {waveform.shape[0]} samples at "
+                f"{sample_rate} Hz is less than one motion frame (1/{self.fps} s). Use a longer clip."
+            )
+        if n_frames is None:
+            n_frames = default_n_frames(waveform.shape[0], sample_rate, self.fps)
+        if int(sample_rate) != int(self.sample_rate):
+            waveform = librosa.resample(
+                waveform, orig_sr=int(sample_rate), target_sr=int(self.sample_rate), res_type="soxr_hq"
+            )
+        features = self._encode(np.ascontiguousarray(waveform, dtype=np.float32), music_id)
+        if features.ndim != 2 or features.shape[1] != self.feature_dim:
+            raise RuntimeError(
+                f"{type(self).__name__} returned shape {features.shape}, expected (T, {self.feature_dim})"
+            )
+        return np.ascontiguousarray(fit_frames(features, int(n_frames)), dtype=np.float32)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.settings()})"

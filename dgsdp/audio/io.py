@@ -1,0 +1,82 @@
+"""The project's one audio loader: any format, sample rate and channel count to a float32 array.
+
+wav/flac/ogg (and mp3 on recent libsndfile) are read by soundfile; anything else goes through librosa's
+audioread fallback. Resampling uses soxr (via librosa), down-mixing averages the channels.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+
+import librosa
+import numpy as np
+import soundfile as sf
+
+from dgsdp.errors import AudioError
+
+RESAMPLE_TYPE = "soxr_hq"
+
+
+def _read_native(path: Path) -> tuple[np.ndarray, int]:
+    """Decode ``path`` at its own rate; returns ((channels, samples) float32, rate_hz)."""
+    try:
+        data, rate_hz = sf.read(str(path), dtype="float32", always_2d=True)
+        return np.ascontiguousarray(data.T), int(rate_hz)
+    except (sf.LibsndfileError, RuntimeError, TypeError, ValueError):
+        pass
+    try:
+        with warnings.catch_warnings():
+            # librosa warns that it falls back to audioread; that fallback is the point here.
+            warnings.simplefilter("ignore")
+            data, rate_hz = librosa.load(str(path), sr=None, mono=False, dtype=np.float32)
+    except Exception as err:  # audioread raises many unrelated types (NoBackendError, EOFError, ...)
+        raise AudioError(
+            f"Cannot decode audio file {path} ({type(err).__name__}: {err}). "
+            "Convert it to wav or flac (e.g. `ffmpeg -i in.xyz out.wav`) or install ffmpeg for other formats."
+        ) from err
+    data = np.asarray(data, dtype=np.float32)
+    if data.ndim == 1:
+        data = data[None, :]
+    return data, int(rate_hz)
+
+
+def load_audio(path: str | os.PathLike, sample_rate: int | None, mono: bool = True) -> tuple[np.ndarray, int]:
+    """Load an audio file as float32 in [-1, 1].
+
+    Returns ``(waveform, rate_hz)``: waveform is ``(samples,)`` when ``mono`` (channels averaged), else
+    ``(channels, samples)``. ``sample_rate=None`` keeps the file's rate; otherwise the audio is resampled.
+    Raises :class:`AudioError` for a missing, undecodable or empty file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise AudioError(f"Audio file not found: {path}. Check the path (and the data folder setting).")
+    if path.stat().st_size == 0:
+        raise AudioError(f"Audio file {path} is empty (0 bytes). Re-copy or re-download it.")
+    data, rate_hz = _read_native(path)
+    if data.size == 0 or data.shape[-1] == 0:
+        raise AudioError(f"Audio file {path} contains no samples. Re-export it with audio content.")
+    if not np.all(np.isfinite(data)):
+        raise AudioError(f"Audio file {path} contains NaN or infinite samples. Re-export it.")
+    if mono:
+        data = data.mean(axis=0)
+    if sample_rate is not None and int(sample_rate) != rate_hz:
+        data = librosa.resample(data, orig_sr=rate_hz, target_sr=int(sample_rate), res_type=RESAMPLE_TYPE)
+        rate_hz = int(sample_rate)
+    return np.ascontiguousarray(data, dtype=np.float32), rate_hz
+
+
+def audio_duration_seconds(path: str | os.PathLike) -> float:
+    """Duration of an audio file in seconds, read from its header when possible (no decoding)."""
+    path = Path(path)
+    if not path.is_file():
+        raise AudioError(f"Audio file not found: {path}. Check the path (and the data folder setting).")
+    try:
+        info = sf.info(str(path))
+        if info.samplerate > 0 and info.frames > 0:
+            return float(info.frames) / float(info.samplerate)
+    except (sf.LibsndfileError, RuntimeError, TypeError, ValueError):
+        pass
+    data, rate_hz = load_audio(path, sample_rate=None, mono=True)
+    return data.shape[-1] / float(rate_hz)
