@@ -15,6 +15,9 @@ from dgsdp.metrics._common import MetricWarning, check_choice, check_joints, y_u
 PFC_SCALE = 10000.0
 LEFT_FOOT = (7, 10)  # left ankle, left toe
 RIGHT_FOOT = (8, 11)  # right ankle, right toe
+# Below this peak (m/s^2) the root acceleration is rounding noise (float32 positions of a root moving at
+# constant velocity reach ~1e-4): normalising by it would turn noise into a full-scale signal.
+MIN_PEAK_ACCELERATION = 1e-3
 
 
 def pfc(joints: np.ndarray, fps: float = 30, up_axis: str = "z") -> float:
@@ -25,8 +28,9 @@ def pfc(joints: np.ndarray, fps: float = 30, up_axis: str = "z") -> float:
     component clamped at >= 0, its norm divided by the sequence maximum. Foot speed is the horizontal
     per-frame displacement (not divided by the frame time) from frame t-1 to t for t = 2..T-1; each
     foot takes the slower of ankle and toe. Score = mean(left * right * acceleration) * 10000.
-    A root without any upward-clamped acceleration (e.g. constant velocity) has no normaliser: the
-    score is 0.0 with a MetricWarning (EDGE's code would give NaN).
+    A root whose clamped acceleration never exceeds 1e-3 m/s^2 (e.g. constant velocity) has no
+    meaningful normaliser: the score is 0.0 with a MetricWarning (EDGE's code would give NaN, or
+    amplified rounding noise).
     """
     check_choice(up_axis, ("y", "z"), "up_axis")
     positions = check_joints(joints, min_frames=3)
@@ -38,9 +42,10 @@ def pfc(joints: np.ndarray, fps: float = 30, up_axis: str = "z") -> float:
     root_acceleration[:, 2] = np.maximum(root_acceleration[:, 2], 0.0)
     acceleration = np.linalg.norm(root_acceleration, axis=-1)
     peak = acceleration.max()
-    if peak == 0:
+    if peak <= MIN_PEAK_ACCELERATION:
         warnings.warn(
-            "PFC: the root never accelerates, so the normalised acceleration is undefined; score set to 0.0.",
+            f"PFC: the root never accelerates (peak {peak:.2g} m/s^2 <= {MIN_PEAK_ACCELERATION}), so the "
+            "normalised acceleration is undefined; score set to 0.0.",
             MetricWarning,
             stacklevel=2,
         )
