@@ -84,7 +84,10 @@ class StyleBank:
         return genre_idx
 
     def sample(self, genre_idx: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-        """One random row of each item's genre: ``genre_idx (B,)`` -> ``(B, dim)`` on the bank's device."""
+        """One random row of each item's genre: ``genre_idx (B,)`` -> ``(B, dim)`` on the bank's device.
+
+        ``generator`` (optional, for reproducibility) must live on the bank's device; see :meth:`to`.
+        """
         genre_idx = self._check(genre_idx)
         u = torch.rand(genre_idx.shape, generator=generator, device=self.vectors.device)
         counts = self.counts[genre_idx]
@@ -203,6 +206,8 @@ class StyleEmbedder:
         out: dict[str, Any] = {"kind": self.kind, "vocab": self.vocab.to_dict(), "dim": self.dim}
         if self.kind in ("genre", "prompt"):
             out["text_encoder"] = self.text_encoder.settings()
+        if self.kind == "prompt":
+            out["prompts_hash"] = stable_hash(self.bank_texts())
         return out
 
     def bank_texts(self) -> tuple[list[str], list[int]]:
