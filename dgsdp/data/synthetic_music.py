@@ -1,0 +1,276 @@
+"""Synthetic music for the synthetic AIST++ dataset: drum-machine loops with a genre's rhythm and timbre.
+
+Every beat carries a strong percussive hit, so a beat tracker finds the tempo the music id encodes; what lies
+between the beats (ghost notes, off-beat hats, swung eighths) and the sounds themselves (kick pitch, snare colour,
+bass, chords) follow the genre. Sub-beat events are kept quiet and a soft noise bed sits under everything, so
+they never pull a tracker to double tempo.
+"""
+
+from __future__ import annotations
+
+import io
+import wave
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+
+@dataclass(frozen=True)
+class Hit:
+    """One event of a one-bar (4-beat) pattern: ``instrument`` at ``beat`` (0 <= beat < 4) with ``gain``."""
+
+    instrument: str
+    beat: float
+    gain: float
+
+
+@dataclass(frozen=True)
+class MusicStyle:
+    """A genre's rhythm (events per 4-beat bar) and timbre (kick pitch, decays, bass, chord voicing)."""
+
+    hits: tuple[Hit, ...]
+    kick_hz: float = 55.0
+    kick_decay_s: float = 0.25
+    snare_decay_s: float = 0.12
+    snare_band_hz: tuple[float, float] = (1000.0, 5000.0)
+    hat_decay_s: float = 0.04
+    tone_wave: str = "saw"
+    tone_decay_s: float = 0.2
+    root_hz: float = 110.0
+    pad_gain: float = 0.05
+    distortion: float = 0.0
+
+
+def _on_beats(instrument: str, gain: float, beats: tuple[float, ...] = (0, 1, 2, 3)) -> tuple[Hit, ...]:
+    return tuple(Hit(instrument, b, gain) for b in beats)
+
+
+EIGHTHS_OFF = (0.5, 1.5, 2.5, 3.5)
+SIXTEENTHS_OFF = (0.25, 0.75, 1.25, 1.75, 2.25, 2.75, 3.25, 3.75)
+SWING_OFF = (2 / 3, 5 / 3, 8 / 3, 11 / 3)
+
+MUSIC_STYLES: dict[str, MusicStyle] = {
+    # Break: breakbeat (kick 1 & 3, snare 2 & 4, a ghost kick), scratchy noise, funky stab.
+    "BR": MusicStyle(
+        hits=_on_beats("kick", 1.0, (0, 2)) + _on_beats("snare", 1.0, (1, 3)) + _on_beats("hat", 0.5)
+        + (Hit("kick", 2.5, 0.2),) + _on_beats("hat", 0.12, EIGHTHS_OFF) + (Hit("tone", 0, 0.5),),
+        kick_hz=60, snare_band_hz=(1500, 6000), tone_wave="square", tone_decay_s=0.12, root_hz=98,
+    ),
+    # Pop: electro funk, kick on every beat, clap on 2 & 4, zappy synth on the one.
+    "PO": MusicStyle(
+        hits=_on_beats("kick", 1.0) + _on_beats("clap", 0.8, (1, 3)) + _on_beats("zap", 0.6, (0, 2)),
+        kick_hz=50, kick_decay_s=0.18, hat_decay_s=0.02, tone_wave="square", root_hz=123,
+    ),
+    # Lock: funk with brass stabs on the beats.
+    "LO": MusicStyle(
+        hits=_on_beats("kick", 1.0, (0, 2)) + _on_beats("snare", 1.0, (1, 3)) + _on_beats("tone", 0.7)
+        + _on_beats("hat", 0.12, EIGHTHS_OFF),
+        kick_hz=65, snare_decay_s=0.15, tone_wave="saw", tone_decay_s=0.15, root_hz=147,
+    ),
+    # Middle hip-hop: boom bap, heavy kick and snare, a bass note per beat.
+    "MH": MusicStyle(
+        hits=_on_beats("kick", 1.0, (0, 2)) + _on_beats("snare", 1.0, (1, 3)) + _on_beats("bass", 0.6)
+        + (Hit("kick", 2.75, 0.2),) + _on_beats("hat", 0.1, EIGHTHS_OFF),
+        kick_hz=52, kick_decay_s=0.3, snare_band_hz=(800, 4000), tone_wave="sine", root_hz=73,
+    ),
+    # LA-style hip-hop: 808 sub kick, claps, light 16th hats.
+    "LH": MusicStyle(
+        hits=_on_beats("kick", 1.0, (0, 2)) + _on_beats("clap", 1.0, (1, 3)) + _on_beats("hat", 0.4)
+        + _on_beats("hat", 0.08, SIXTEENTHS_OFF) + _on_beats("bass", 0.5, (0, 2)),
+        kick_hz=45, kick_decay_s=0.5, tone_wave="sine", root_hz=65,
+    ),
+    # House: four on the floor, open hat on the off-beats, chord stabs, pad.
+    "HO": MusicStyle(
+        hits=_on_beats("kick", 1.0) + _on_beats("clap", 0.6, (1, 3)) + _on_beats("openhat", 0.18, EIGHTHS_OFF)
+        + _on_beats("tone", 0.4),
+        kick_hz=50, kick_decay_s=0.2, hat_decay_s=0.08, tone_wave="square", tone_decay_s=0.1, root_hz=110,
+        pad_gain=0.08,
+    ),
+    # Waack: disco, four on the floor, off-beat hats, octave bass, strings.
+    "WA": MusicStyle(
+        hits=_on_beats("kick", 1.0) + _on_beats("snare", 0.6, (1, 3)) + _on_beats("openhat", 0.15, EIGHTHS_OFF)
+        + _on_beats("bass", 0.6) + _on_beats("bass", 0.12, EIGHTHS_OFF),
+        kick_hz=58, kick_decay_s=0.2, tone_wave="saw", root_hz=82, pad_gain=0.1,
+    ),
+    # Krump: slow heavy distorted hits on every beat, low rumble, nothing in between.
+    "KR": MusicStyle(
+        hits=_on_beats("kick", 1.0) + _on_beats("snare", 0.9) + _on_beats("bass", 0.5, (0, 2)),
+        kick_hz=42, kick_decay_s=0.45, snare_decay_s=0.25, snare_band_hz=(400, 3000), tone_wave="saw",
+        root_hz=55, distortion=3.0,
+    ),
+    # Street jazz: swing, ride on the beats plus quiet swung eighths, walking bass.
+    "JS": MusicStyle(
+        hits=_on_beats("kick", 0.8, (0, 2)) + _on_beats("snare", 0.8, (1, 3)) + _on_beats("ride", 0.6)
+        + _on_beats("ride", 0.15, SWING_OFF) + _on_beats("bass", 0.6),
+        kick_hz=62, snare_decay_s=0.1, hat_decay_s=0.15, tone_wave="triangle", root_hz=87,
+    ),
+    # Ballet jazz: piano chords on the beats over strings, soft kick, swung ride.
+    "JB": MusicStyle(
+        hits=_on_beats("piano", 1.0) + _on_beats("kick", 0.6) + _on_beats("ride", 0.12, SWING_OFF),
+        kick_hz=70, kick_decay_s=0.15, tone_wave="triangle", tone_decay_s=0.5, root_hz=196, pad_gain=0.12,
+    ),
+}  # fmt: skip
+
+
+def _decay(n: int, decay_s: float, sample_rate_hz: int) -> np.ndarray:
+    return np.exp(-np.arange(n) / (decay_s * sample_rate_hz))
+
+
+def _wave(kind: str, phase: np.ndarray) -> np.ndarray:
+    """Periodic waveform of ``phase`` (cycles)."""
+    frac = phase % 1.0
+    if kind == "sine":
+        return np.sin(2 * np.pi * phase)
+    if kind == "square":
+        return np.tanh(4 * np.sin(2 * np.pi * phase))
+    if kind == "triangle":
+        return 4 * np.abs(frac - 0.5) - 1
+    return 2 * frac - 1  # saw
+
+
+def _bandpass_noise(n: int, low_hz: float, high_hz: float, sample_rate_hz: int, rng: np.random.Generator):
+    """White noise through a one-pole high-pass and low-pass (cheap, good enough for drums)."""
+    noise = rng.standard_normal(n)
+    a_hp = np.exp(-2 * np.pi * low_hz / sample_rate_hz)
+    hp = lfilter([1 - a_hp, -(1 - a_hp)], [1, -a_hp], noise) if low_hz > 0 else noise
+    a_lp = np.exp(-2 * np.pi * high_hz / sample_rate_hz)
+    return lfilter([1 - a_lp], [1, -a_lp], hp)
+
+
+def _instrument_sounds(
+    style: MusicStyle, sample_rate_hz: int, rng: np.random.Generator
+) -> dict[str, np.ndarray]:
+    """One sample per instrument, peak-normalised; each starts with a sharp attack (the onset)."""
+    sr = sample_rate_hz
+    sounds: dict[str, np.ndarray] = {}
+
+    n = int(sr * max(0.6, 3 * style.kick_decay_s))
+    t = np.arange(n) / sr
+    # Pitch falls from about 4x to the base frequency within ~30 ms: the "thump".
+    freq = style.kick_hz * (1 + 3 * np.exp(-t / 0.03))
+    phase = np.cumsum(freq) / sr
+    kick = np.sin(2 * np.pi * phase) * _decay(n, style.kick_decay_s, sr)
+    kick[: int(0.003 * sr)] += rng.standard_normal(int(0.003 * sr)) * 0.5  # beater click
+    sounds["kick"] = kick
+
+    n = int(sr * 4 * style.snare_decay_s)
+    body = np.sin(2 * np.pi * 190 * np.arange(n) / sr) * _decay(n, style.snare_decay_s * 0.5, sr)
+    noise = _bandpass_noise(n, *style.snare_band_hz, sr, rng)
+    sounds["snare"] = 0.4 * body + noise / np.abs(noise).max() * _decay(n, style.snare_decay_s, sr)
+
+    n = int(sr * 0.3)
+    clap = _bandpass_noise(n, 900, 3000, sr, rng)
+    env = _decay(n, 0.06, sr)
+    for delay_s in (0.008, 0.016):  # a clap is several hands a few ms apart
+        d = int(delay_s * sr)
+        env[d:] += 0.6 * _decay(n - d, 0.01, sr)
+    sounds["clap"] = clap / np.abs(clap).max() * env
+
+    for name, decay_s, low_hz in (
+        ("hat", style.hat_decay_s, 6000),
+        ("openhat", 0.15, 5000),
+        ("ride", 0.4, 3000),
+    ):
+        n = int(sr * 4 * decay_s)
+        hat = _bandpass_noise(n, low_hz, 16000, sr, rng)
+        if name == "ride":
+            ring = np.arange(n) / sr
+            hat = hat / np.abs(hat).max() + 0.3 * np.sin(2 * np.pi * 3200 * ring) * np.sin(
+                2 * np.pi * 4700 * ring
+            )
+        sounds[name] = hat / np.abs(hat).max() * _decay(n, decay_s, sr)
+
+    n = int(sr * 3 * style.tone_decay_s)
+    t = np.arange(n) / sr
+    chord = sum(_wave(style.tone_wave, f * style.root_hz * t) for f in (2.0, 2.52, 3.0))
+    sounds["tone"] = chord / 3 * _decay(n, style.tone_decay_s, sr)
+
+    n = int(sr * 0.25)
+    t = np.arange(n) / sr
+    zap_freq = 1500 * np.exp(-t / 0.04) + 100
+    sounds["zap"] = np.sin(2 * np.pi * np.cumsum(zap_freq) / sr) * _decay(n, 0.08, sr)
+
+    n = int(sr * 1.5)
+    t = np.arange(n) / sr
+    piano = sum(np.sin(2 * np.pi * f * style.root_hz * t) / k for k, f in enumerate((1.0, 1.26, 1.5, 2.0), 1))
+    sounds["piano"] = piano * _decay(n, style.tone_decay_s, sr) * (1 - np.exp(-t / 0.002))
+
+    n = int(sr * 0.4)
+    t = np.arange(n) / sr
+    sounds["bass"] = _wave(style.tone_wave, style.root_hz / 2 * t) * _decay(n, 0.15, sr)
+
+    for name, s in sounds.items():
+        s = s / (np.abs(s).max() + 1e-12)
+        if style.distortion > 0 and name in ("kick", "snare"):
+            s = np.tanh(style.distortion * s) / np.tanh(style.distortion)
+        sounds[name] = s
+    return sounds
+
+
+def beat_period_s(bpm: float) -> float:
+    return 60.0 / bpm
+
+
+def synthesize_music(
+    genre: str,
+    bpm: float,
+    seconds: float,
+    *,
+    first_beat_s: float,
+    sample_rate_hz: int,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A genre's drum-machine loop at ``bpm``.
+
+    Returns audio (S,) float32 in [-1, 1] and the beat times (B,) in seconds: one beat every 60 / bpm seconds
+    from ``first_beat_s``. ``rng`` varies the sounds and the chord progression.
+    """
+    style = MUSIC_STYLES[genre]
+    sr = sample_rate_hz
+    total = int(round(seconds * sr))
+    period_s = beat_period_s(bpm)
+    beat_times = np.arange(first_beat_s, seconds, period_s)
+    sounds = _instrument_sounds(style, sr, rng)
+    out = np.zeros(
+        total + max(len(s) for s in sounds.values()), dtype=np.float64
+    )  # tail room for the last hits
+
+    # Bars start one beat-pattern before the first beat so that pickup events fill the start.
+    bar_starts = np.arange(first_beat_s - 4 * period_s, seconds, 4 * period_s)
+    for hit in style.hits:
+        sound = sounds[hit.instrument]
+        for bar_start in bar_starts:
+            start = int(round((bar_start + hit.beat * period_s) * sr))
+            if start < 0 or start >= total:
+                continue
+            # Small per-hit loudness variation, like a human on a drum machine's velocity knob.
+            gain = hit.gain * (1.0 + 0.05 * rng.standard_normal())
+            out[start : start + len(sound)] += gain * sound
+
+    # A pad changing chord on every bar's downbeat, with a slow attack (no extra onsets), and a soft noise bed
+    # so that quiet sub-beat events make small onsets.
+    t = np.arange(total) / sr
+    progression = rng.choice([1.0, 1.335, 1.5, 1.122, 0.891], size=len(bar_starts) + 1)
+    bar_index = np.clip(((t - bar_starts[0]) // (4 * period_s)).astype(int), 0, len(progression) - 1)
+    root = style.root_hz * progression[bar_index]
+    pad_phase = np.cumsum(root) / sr
+    pad = sum(np.sin(2 * np.pi * k * pad_phase) for k in (1.0, 1.5, 2.0)) / 3
+    out[:total] += style.pad_gain * pad * (1 - np.exp(-t / 0.5))
+    out[:total] += 0.01 * _bandpass_noise(total, 100, 8000, sr, rng)
+
+    audio = out[:total]
+    audio = audio / (np.abs(audio).max() + 1e-12) * 0.9
+    return audio.astype(np.float32), beat_times
+
+
+def wav_bytes(audio: np.ndarray, sample_rate_hz: int) -> bytes:
+    """Mono 16-bit PCM WAV file contents for ``audio`` (S,) in [-1, 1] (deterministic bytes)."""
+    pcm = np.clip(np.round(audio * 32767.0), -32768, 32767).astype("<i2")
+    buffer = io.BytesIO()
+    with wave.open(buffer, "wb") as w:
+        w.setnchannels(1)
+        w.setsampwidth(2)
+        w.setframerate(sample_rate_hz)
+        w.writeframes(pcm.tobytes())
+    return buffer.getvalue()
