@@ -22,7 +22,7 @@ JOINT_NAMES = [
     "rtoes", "neck", "linshoulder", "rinshoulder", "head", "lshoulder", "rshoulder", "lelbow", "relbow",
     "lwrist", "rwrist", "lhand", "rhand",
 ]  # fmt: skip
-HL, SW, HW = 0.256838, 0.390848, 0.119247
+HL, SW, HW = 0.2568381092115207, 0.39084835854945527, 0.11924706586886204  # humerus, shoulders, hips (m)
 
 
 def kinetic_features_loop(joints: np.ndarray, fps: float = 60, mode: str = "paper") -> np.ndarray:

@@ -25,10 +25,11 @@ JOINT_INDEX = {
     )
 }  # fmt: skip
 
-# Body constants (metres): distances between joints of the SMPL rest pose, as in the reference.
-HUMERUS_LENGTH = 0.256838  # left shoulder - left elbow
-SHOULDER_WIDTH = 0.390848  # left shoulder - right shoulder
-HIP_WIDTH = 0.119247  # left hip - right hip
+# Body constants (metres): distances between SMPL rest-pose joints, full precision of the reference's
+# values (0.256838, 0.390848, 0.119247 rounded).
+HUMERUS_LENGTH = 0.2568381092115207  # left shoulder - left elbow
+SHOULDER_WIDTH = 0.39084835854945527  # left shoulder - right shoulder
+HIP_WIDTH = 0.11924706586886204  # left hip - right hip
 
 PAPER_VELOCITY_SCALE = 120.0  # the reference divides one-frame displacements by 1/120 s at any fps
 
