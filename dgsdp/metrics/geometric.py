@@ -113,7 +113,12 @@ class _Frames:
 
 
 def _evaluate(
-    frames: _Frames, kind: str, names: tuple[str, ...], param, mode: str, velocity_scale: float
+    frames: _Frames,
+    kind: str,
+    names: tuple[str, ...],
+    param: float | tuple[float, float],
+    mode: str,
+    velocity_scale: float,
 ) -> np.ndarray:
     """One boolean relation on every current frame: (B, T-1) bool."""
     p = [frames.now(n) for n in names]
@@ -133,7 +138,8 @@ def _evaluate(
     if kind == "move":
         j1, j2, _, _ = p
         # paper: the reference measures j3 relative to j1 and never reads j4;
-        # corrected: j4 relative to j3, along j1 -> j2 (Mueller et al.'s definition).
+        # corrected: j4 relative to j3 along j1 -> j2, so every named joint counts (our reading of
+        # Mueller et al.'s relation; it makes features 5 and 6 follow the right and left wrist).
         moving, origin = (names[2], names[0]) if mode == "paper" else (names[3], names[2])
         velocity = frames.relative_velocity(moving, origin, velocity_scale)
         return np.einsum("...i,...i->...", velocity, _unit(j2 - j1)) > param
