@@ -108,7 +108,7 @@ class AudioEncoder(abc.ABC):
 
         ``waveform`` is ``(samples,)`` or ``(channels, samples)`` at ``sample_rate`` Hz (resampled and
         down-mixed here). ``n_frames`` defaults to ``floor(duration_seconds * fps)``; the features are
-        truncated or edge-padded to it.
+        truncated to that song length, then truncated or edge-padded (last frame repeated) to ``n_frames``.
         """
         waveform = np.asarray(waveform, dtype=np.float32)
         if waveform.ndim == 2:
@@ -123,8 +123,9 @@ class AudioEncoder(abc.ABC):
                 f"Audio is too short for the {self.name} encoder: {waveform.shape[0]} samples at "
                 f"{sample_rate} Hz is less than one motion frame (1/{self.fps} s). Use a longer clip."
             )
+        song_frames = default_n_frames(waveform.shape[0], sample_rate, self.fps)
         if n_frames is None:
-            n_frames = default_n_frames(waveform.shape[0], sample_rate, self.fps)
+            n_frames = song_frames
         if int(sample_rate) != int(self.sample_rate):
             waveform = librosa.resample(
                 waveform, orig_sr=int(sample_rate), target_sr=int(self.sample_rate), res_type="soxr_hq"
@@ -134,7 +135,9 @@ class AudioEncoder(abc.ABC):
             raise RuntimeError(
                 f"{type(self).__name__} returned shape {features.shape}, expected (T, {self.feature_dim})"
             )
-        return np.ascontiguousarray(fit_frames(features, int(n_frames)), dtype=np.float32)
+        # First the song's own length, so that padding repeats the last frame inside the audio.
+        features = fit_frames(fit_frames(features, song_frames), int(n_frames))
+        return np.ascontiguousarray(features, dtype=np.float32)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.settings()})"

@@ -142,7 +142,11 @@ class JukeboxEncoder(AudioEncoder):
         slice_seconds: float = 5.0,
         resample_type: str = "fft",
         feature_dim: int = 4800,
+        vqvae_overrides: Mapping[str, Any] | None = None,
+        prior_overrides: Mapping[str, Any] | None = None,
     ) -> None:
+        """``vqvae_overrides`` / ``prior_overrides`` change the package's ``vqvae`` / ``prior_5b``
+        hyper-parameters (small models in tests); leave them empty for the released 5B weights."""
         if slice_seconds <= 0:
             raise ConfigError(f"audio.slice_seconds must be > 0, got {slice_seconds}")
         if layer < 1:
@@ -155,6 +159,8 @@ class JukeboxEncoder(AudioEncoder):
         self.resample_type = str(resample_type)
         self.sample_rate = JUKEBOX_SAMPLE_RATE
         self.feature_dim = int(feature_dim)
+        self.vqvae_overrides = dict(vqvae_overrides or {})
+        self.prior_overrides = dict(prior_overrides or {})
         self._vqvae: nn.Module | None = None
         self._prior: nn.Module | None = None
         self._source = "pretrained-5b"
@@ -170,22 +176,18 @@ class JukeboxEncoder(AudioEncoder):
     ) -> JukeboxEncoder:
         """Randomly initialised models of the 5B architecture with hyper-parameters overridden (tests)."""
         hparams, _ = _import_jukebox()
-        encoder = cls(**kwargs)
-        vqvae_hps, prior_hps = encoder._hparams(hparams, vqvae_overrides or {}, prior_overrides or {})
-        encoder._build(vqvae_hps, prior_hps, on_meta=False)
+        encoder = cls(vqvae_overrides=vqvae_overrides, prior_overrides=prior_overrides, **kwargs)
+        encoder._build(*encoder._hparams(hparams), on_meta=False)
         encoder._finish()
-        encoder._source = "random:" + repr(
-            (sorted(dict(vqvae_overrides or {}).items()), sorted(dict(prior_overrides or {}).items()))
-        )
+        encoder._source = "random"
         return encoder
 
-    @staticmethod
-    def _hparams(hparams: Any, vqvae_overrides: Mapping, prior_overrides: Mapping) -> tuple[Any, Any]:
+    def _hparams(self, hparams: Any) -> tuple[Any, Any]:
         # Empty restore paths: the package's builders then skip their own (downloading) checkpoint loading.
         vqvae_hps = hparams.setup_hparams(
-            "vqvae", {"sample_length": 1048576, "restore_vqvae": "", **dict(vqvae_overrides)}
+            "vqvae", {"sample_length": 1048576, "restore_vqvae": "", **self.vqvae_overrides}
         )
-        prior_hps = hparams.setup_hparams("prior_5b", {"restore_prior": "", **dict(prior_overrides)})
+        prior_hps = hparams.setup_hparams("prior_5b", {"restore_prior": "", **self.prior_overrides})
         return vqvae_hps, prior_hps
 
     def _build(self, vqvae_hps: Any, prior_hps: Any, on_meta: bool) -> None:
@@ -239,8 +241,7 @@ class JukeboxEncoder(AudioEncoder):
                 f"(set audio.weights_dir or DGSDP_JUKEBOX_DIR to use another folder). Download them with: "
                 f"{downloads}"
             )
-        vqvae_hps, prior_hps = self._hparams(hparams, {}, {})
-        self._build(vqvae_hps, prior_hps, on_meta=True)
+        self._build(*self._hparams(hparams), on_meta=True)
         for model, path, select in (
             (self._vqvae, paths["vqvae"], lambda s: {k.removeprefix("module."): v for k, v in s.items()}),
             (self._prior, paths["prior"], lambda s: select_prior_state(s, self.layer)),
@@ -264,6 +265,8 @@ class JukeboxEncoder(AudioEncoder):
     def settings(self) -> dict[str, Any]:
         return {
             "source": self._source,
+            "vqvae_overrides": self.vqvae_overrides,
+            "prior_overrides": self.prior_overrides,
             "layer": self.layer,
             "fp16": self.fp16,
             "slice_seconds": self.slice_seconds,
