@@ -94,7 +94,8 @@ def kinetic_features(
         energy (1/ft) * (1/ft - 1) * |p| (3540 |p| at 60 FPS).
       - ``"corrected"`` uses ``v1 = (p[k] - p[k-1]) / ft``: a static joint gets 0.
 
-    A 2-frame motion has no acceleration: its energies are 0 with a MetricWarning. Returns (72,) float64.
+    A 2-frame motion has no acceleration: its energies are 0 with a MetricWarning. Returns (72,) float64
+    (the reference stores float32: differences of about 1e-7 relative).
     """
     check_feature_args(fps, up_axis, mode)
     positions = to_y_up(check_joints(joints, min_frames=2), up_axis)
