@@ -1,0 +1,1 @@
+"""Entry points (train, generate, evaluate) behind the thin root scripts."""

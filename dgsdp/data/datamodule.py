@@ -1,0 +1,286 @@
+"""Training and evaluation windows of (motion, music, style) from an AIST++-layout dataset.
+
+Each item is a window of ``window_seconds`` of normalised 151-d motion at 30 FPS with the music for the same
+frames (encoder features, or the raw waveform), the genre index and the music id. Processed motion and audio
+features are cached on disk per file content and settings (see :class:`dgsdp.utils.io.DiskCache`), so a second run
+does no processing and a changed setting never reuses stale data.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+from tqdm.auto import tqdm
+
+from dgsdp.audio import AudioEncoder, FeatureCache, load_audio
+from dgsdp.data.aistpp import check_root, load_motion_pkl, music_path, parse_name, process_motion, read_split
+from dgsdp.errors import DataError
+from dgsdp.motion import POSE_DIM, MinMaxNormalizer
+from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
+from dgsdp.utils.io import DiskCache, file_hash
+
+log = logging.getLogger(__name__)
+
+MOTION_CACHE_VERSION = 1
+
+
+def window_starts(n_frames: int, length: int, stride: int) -> list[int]:
+    """Start frames of every window of ``length`` frames lying wholly inside ``n_frames``, ``stride`` apart."""
+    if length <= 0 or stride <= 0:
+        raise ValueError(f"window length and stride must be positive, got {length} and {stride}")
+    if n_frames < length:
+        return []
+    return list(range(0, n_frames - length + 1, stride))
+
+
+@dataclass
+class Sequence:
+    """One processed dance: 151-d motion (T, 151) unnormalised, z-up, and its music."""
+
+    name: str
+    genre: str
+    genre_index: int
+    music_id: str
+    motion: np.ndarray
+    audio: np.ndarray | None  # (T_audio, D) features at 30 FPS, or (samples,) waveform, or None
+
+
+def load_sequences(
+    root: str | Path,
+    split: str,
+    *,
+    fps: int = 30,
+    cache_dir: str | Path,
+    audio_encoder: AudioEncoder | None = None,
+    waveform_sample_rate: int | None = None,
+    vocab: GenreVocab = AISTPP_GENRES,
+    max_sequences: int | None = None,
+    progress: bool = True,
+) -> list[Sequence]:
+    """Read, process (cached) and pair each sequence of a split with its music."""
+    root = check_root(root)
+    names = read_split(root, split)[:max_sequences]
+    motion_cache = DiskCache(cache_dir, f"motion-v{MOTION_CACHE_VERSION}-{fps}fps")
+    feature_cache = FeatureCache(cache_dir) if audio_encoder is not None else None
+    sequences: list[Sequence] = []
+    for name in tqdm(names, desc=f"loading {split} ({root.name})", disable=not progress, leave=False):
+        parsed = parse_name(name)
+        pkl = root / "motions" / f"{name}.pkl"
+
+        def compute(pkl: Path = pkl) -> dict[str, np.ndarray]:
+            poses, trans_m = load_motion_pkl(pkl)
+            return {"motion": process_motion(poses, trans_m, fps=fps)}
+
+        motion = motion_cache.get_or_compute(file_hash(pkl), compute)["motion"]
+        audio: np.ndarray | None = None
+        if audio_encoder is not None:
+            audio = feature_cache.features_for_file(
+                audio_encoder, music_path(root, parsed.music_id), music_id=parsed.music_id
+            )
+        elif waveform_sample_rate is not None:
+            audio, _ = load_audio(music_path(root, parsed.music_id), waveform_sample_rate)
+        sequences.append(
+            Sequence(name, parsed.genre, vocab.index(parsed.genre), parsed.music_id, motion, audio)
+        )
+    return sequences
+
+
+class WindowDataset(Dataset):
+    """Fixed-length windows over a list of sequences; motion normalised by ``normalizer``."""
+
+    def __init__(
+        self,
+        sequences: list[Sequence],
+        normalizer: MinMaxNormalizer,
+        *,
+        length: int,
+        stride: int,
+        fps: int = 30,
+        waveform_sample_rate: int | None = None,
+    ) -> None:
+        self.sequences = sequences
+        self.normalizer = normalizer
+        self.length = length
+        self.fps = fps
+        self.waveform_sample_rate = waveform_sample_rate
+        self.index = [
+            (i, s) for i, seq in enumerate(sequences) for s in window_starts(len(seq.motion), length, stride)
+        ]
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def _audio_window(self, audio: np.ndarray, start: int) -> np.ndarray:
+        if self.waveform_sample_rate is not None:
+            per_frame = self.waveform_sample_rate / self.fps
+            a, n = int(round(start * per_frame)), int(round(self.length * per_frame))
+            chunk = audio[a : a + n]
+            return np.pad(chunk, (0, n - len(chunk)))
+        chunk = audio[start : start + self.length]
+        if len(chunk) == 0:
+            raise DataError("the music is shorter than the motion start; check the dataset's wavs")
+        if len(chunk) < self.length:  # song shorter than the dance: hold the last feature frame
+            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], self.length - len(chunk), axis=0)])
+        return chunk
+
+    def __getitem__(self, i: int) -> dict[str, Any]:
+        seq_i, start = self.index[i]
+        seq = self.sequences[seq_i]
+        motion = torch.from_numpy(seq.motion[start : start + self.length])
+        item: dict[str, Any] = {
+            "motion": self.normalizer.normalize(motion),
+            "genre": seq.genre_index,
+            "music_id": seq.music_id,
+            "name": seq.name,
+            "start": start,
+        }
+        if seq.audio is not None:
+            item["audio"] = torch.from_numpy(
+                np.ascontiguousarray(self._audio_window(seq.audio, start))
+            ).float()
+        return item
+
+
+class DanceDataModule(L.LightningDataModule):
+    """Windows of AIST++-layout data for training (stride 0.5 s) and validation/testing (stride 2.5 s).
+
+    ``audio_encoder`` None with ``waveform_sample_rate`` set yields raw waveform windows; both None yields motion
+    only. If ``root`` has no dataset and ``synthetic`` is set, the synthetic dataset is generated there first.
+    The normaliser is fitted on every frame of the training sequences.
+    """
+
+    def __init__(
+        self,
+        root: str,
+        cache_dir: str,
+        *,
+        audio_encoder: AudioEncoder | None = None,
+        waveform_sample_rate: int | None = None,
+        fps: int = 30,
+        window_seconds: float = 5.0,
+        train_stride_seconds: float = 0.5,
+        test_stride_seconds: float = 2.5,
+        train_split: str = "train",
+        val_split: str = "test",
+        test_split: str = "test",
+        batch_size: int = 64,
+        num_workers: int = 0,
+        max_sequences: int | None = None,
+        synthetic: dict[str, Any] | None = None,
+        vocab: GenreVocab = AISTPP_GENRES,
+        progress: bool = True,
+    ) -> None:
+        super().__init__()
+        self.root = Path(root).expanduser()
+        self.cache_dir = Path(cache_dir).expanduser()
+        self.audio_encoder = audio_encoder
+        self.waveform_sample_rate = waveform_sample_rate
+        self.fps = fps
+        self.length = int(round(window_seconds * fps))
+        self.train_stride = int(round(train_stride_seconds * fps))
+        self.test_stride = int(round(test_stride_seconds * fps))
+        self.splits = {"train": train_split, "val": val_split, "test": test_split}
+        self.batch_size = batch_size
+        self.num_workers = num_workers
+        self.max_sequences = max_sequences
+        self.synthetic = dict(synthetic) if synthetic else None
+        self.vocab = vocab
+        self.progress = progress
+        self.normalizer = MinMaxNormalizer(POSE_DIM)
+        self._sequences: dict[str, list[Sequence]] = {}
+        self.datasets: dict[str, WindowDataset] = {}
+
+    @property
+    def audio_dim(self) -> int:
+        return 0 if self.audio_encoder is None else self.audio_encoder.feature_dim
+
+    def settings(self) -> dict[str, Any]:
+        """What shapes the data, for run records and cache keys."""
+        return {
+            "root": str(self.root),
+            "fps": self.fps,
+            "window_frames": self.length,
+            "train_stride": self.train_stride,
+            "test_stride": self.test_stride,
+            "splits": self.splits,
+            "audio": None if self.audio_encoder is None else self.audio_encoder.settings(),
+        }
+
+    def prepare_data(self) -> None:
+        if self.synthetic is not None and not (self.root / "motions").is_dir():
+            from dgsdp.data.synthetic import generate_synthetic_aistpp
+
+            log.info("generating the synthetic AIST++ dataset in %s", self.root)
+            generate_synthetic_aistpp(self.root, **self.synthetic)
+        check_root(self.root)
+
+    def sequences(self, stage: str) -> list[Sequence]:
+        split = self.splits[stage]
+        if split not in self._sequences:
+            self._sequences[split] = load_sequences(
+                self.root,
+                split,
+                fps=self.fps,
+                cache_dir=self.cache_dir,
+                audio_encoder=self.audio_encoder,
+                waveform_sample_rate=self.waveform_sample_rate,
+                vocab=self.vocab,
+                max_sequences=self.max_sequences,
+                progress=self.progress,
+            )
+        return self._sequences[split]
+
+    def setup(self, stage: str | None = None) -> None:
+        train = self.sequences("train")
+        if not bool(self.normalizer.fitted):
+            self.normalizer.fit(torch.from_numpy(np.concatenate([s.motion for s in train])))
+        wanted = {
+            "fit": ("train", "val"),
+            "validate": ("val",),
+            "test": ("test",),
+            None: ("train", "val", "test"),
+        }
+        for name in wanted.get(stage, ("train", "val", "test")):
+            if name in self.datasets:
+                continue
+            stride = self.train_stride if name == "train" else self.test_stride
+            ds = WindowDataset(
+                self.sequences(name),
+                self.normalizer,
+                length=self.length,
+                stride=stride,
+                fps=self.fps,
+                waveform_sample_rate=self.waveform_sample_rate if self.audio_encoder is None else None,
+            )
+            if len(ds) == 0:
+                raise DataError(
+                    f"split {self.splits[name]!r} of {self.root} has no sequence of at least "
+                    f"{self.length / self.fps:.1f} s; use shorter windows (data.window_seconds)"
+                )
+            self.datasets[name] = ds
+
+    def _loader(self, name: str, shuffle: bool) -> DataLoader:
+        return DataLoader(
+            self.datasets[name],
+            batch_size=self.batch_size,
+            shuffle=shuffle,
+            drop_last=shuffle and len(self.datasets[name]) > self.batch_size,
+            num_workers=self.num_workers,
+            persistent_workers=self.num_workers > 0,
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)

@@ -1,0 +1,168 @@
+"""The denoiser: EDGE's DanceDecoder extended with style (DGSDP's MCSAD).
+
+Given a noisy motion x_t (B, T, 151), the diffusion step t, music features (B, T, Da) and a style vector, it
+predicts the clean motion x0 (B, T, 151).
+
+- Time: sinusoidal -> Linear(d, 4d) -> Mish; Linear(4d, d) gives the FiLM vector, Linear(4d, 2d) two time tokens.
+- Music: Linear(Da, d) (plus Linear(ds, d) of the style in ``concat`` injection: a linear layer over the
+  concatenation [music, style] is exactly the sum of the two projections), a 2-layer rotary transformer
+  encoder, tokens mean-pooled -> LN -> Linear -> SiLU -> Linear added to the FiLM vector.
+- Condition dropout for classifier-free guidance: a dropped music input is replaced by a learned null sequence
+  (before the music encoder; EDGE replaces the encoder output, which is an equally free learned constant when no
+  style is concatenated), a dropped style by a learned null style vector. Music and style drop separately.
+- Cross-attention memory: LayerNorm(concat(music tokens, time tokens)).
+- Decoder layer: pre-norm self-attention, cross-attention, [style modulation], feed-forward; each sub-block's
+  output passes FiLM by the time vector before the residual add.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from dgsdp.model.layers import Attention, EncoderLayer, FeedForward, FiLM, sinusoidal_embedding
+from dgsdp.style.injection import StyleModulation
+
+INJECTIONS = ("modulation", "concat")
+
+
+class DecoderLayer(nn.Module):
+    def __init__(self, d_model: int, n_heads: int, ff_dim: int, dropout: float) -> None:
+        super().__init__()
+        self.norm1, self.norm2, self.norm3 = (
+            nn.LayerNorm(d_model),
+            nn.LayerNorm(d_model),
+            nn.LayerNorm(d_model),
+        )
+        self.self_attn = Attention(d_model, n_heads, dropout, rotary=True)
+        self.cross_attn = Attention(d_model, n_heads, dropout, rotary=False)
+        self.ff = FeedForward(d_model, ff_dim, dropout)
+        self.film1, self.film2, self.film3 = FiLM(d_model), FiLM(d_model), FiLM(d_model)
+        self.drop = nn.Dropout(dropout)
+
+    def forward(
+        self,
+        x: torch.Tensor,
+        memory: torch.Tensor,
+        t_cond: torch.Tensor,
+        style: torch.Tensor | None = None,
+        modulation: StyleModulation | None = None,
+    ) -> torch.Tensor:
+        x = x + self.drop(self.film1(self.self_attn(self.norm1(x)), t_cond))
+        x = x + self.drop(self.film2(self.cross_attn(self.norm2(x), memory), t_cond))
+        if modulation is not None and style is not None:
+            x = modulation(x, style)
+        return x + self.drop(self.film3(self.ff(self.norm3(x)), t_cond))
+
+
+class DanceDenoiser(nn.Module):
+    """Predicts x0 from (x_t, t, music, style). All sizes come from config (``conf/model``)."""
+
+    def __init__(
+        self,
+        *,
+        pose_dim: int = 151,
+        seq_len: int = 150,
+        d_model: int = 512,
+        n_layers: int = 8,
+        n_heads: int = 8,
+        ff_dim: int = 1024,
+        dropout: float = 0.1,
+        audio_dim: int = 35,
+        music_encoder_layers: int = 2,
+        style_dim: int = 0,
+        style_injection: str = "modulation",
+        modulation_variant: str = "official",
+        modulation_shared: bool = True,
+        also_concat: bool = False,
+    ) -> None:
+        super().__init__()
+        if style_dim and style_injection not in INJECTIONS:
+            raise ValueError(f"unknown style injection {style_injection!r}; use one of {INJECTIONS}")
+        self.pose_dim, self.seq_len, self.d_model = pose_dim, seq_len, d_model
+        self.audio_dim, self.style_dim = audio_dim, style_dim
+        self.use_modulation = bool(style_dim) and style_injection == "modulation"
+        self.use_concat = bool(style_dim) and (style_injection == "concat" or also_concat)
+
+        self.input_proj = nn.Linear(pose_dim, d_model)
+        self.time_mlp = nn.Sequential(nn.Linear(d_model, 4 * d_model), nn.Mish())
+        self.time_film = nn.Linear(4 * d_model, d_model)
+        self.time_tokens = nn.Linear(4 * d_model, 2 * d_model)
+
+        self.music_proj = nn.Linear(audio_dim, d_model) if audio_dim else None
+        self.null_music = nn.Parameter(torch.randn(1, seq_len, d_model) * 0.02)
+        self.style_concat_proj = nn.Linear(style_dim, d_model, bias=False) if self.use_concat else None
+        self.null_style = nn.Parameter(torch.zeros(style_dim)) if style_dim else None
+        self.music_encoder = nn.Sequential(
+            *(EncoderLayer(d_model, n_heads, ff_dim, dropout) for _ in range(music_encoder_layers))
+        )
+        self.music_pool = nn.Sequential(
+            nn.LayerNorm(d_model), nn.Linear(d_model, d_model), nn.SiLU(), nn.Linear(d_model, d_model)
+        )
+        self.memory_norm = nn.LayerNorm(d_model)
+
+        self.layers = nn.ModuleList(DecoderLayer(d_model, n_heads, ff_dim, dropout) for _ in range(n_layers))
+        self.modulations: nn.ModuleList | None = None
+        if self.use_modulation:
+            count = 1 if modulation_shared else n_layers
+            self.modulations = nn.ModuleList(
+                StyleModulation(d_model, style_dim, variant=modulation_variant) for _ in range(count)
+            )
+        self.output_proj = nn.Linear(d_model, pose_dim)
+
+    def _style(self, style: torch.Tensor | None, keep: torch.Tensor, batch: int) -> torch.Tensor | None:
+        if not self.style_dim:
+            return None
+        null = self.null_style.expand(batch, self.style_dim)
+        if style is None:
+            return null
+        if style.ndim == 3:  # per-frame style (B, T, ds)
+            return torch.where(keep[:, None, None], style, null[:, None, :])
+        return torch.where(keep[:, None], style, null)
+
+    def forward(
+        self,
+        x_t: torch.Tensor,
+        t: torch.Tensor,
+        music: torch.Tensor | None = None,
+        style: torch.Tensor | None = None,
+        keep_music: torch.Tensor | None = None,
+        keep_style: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """x_t (B, T, 151), t (B,), music (B, T, Da), style (B, ds) or (B, T, ds); keep_* (B,) bool
+        (False = condition dropped). Returns x0 prediction (B, T, 151)."""
+        b, n, _ = x_t.shape
+        if n > self.seq_len:
+            raise ValueError(
+                f"sequence of {n} frames is longer than the model's {self.seq_len}; use long-form"
+            )
+        ones = torch.ones(b, dtype=torch.bool, device=x_t.device)
+        keep_music = ones if keep_music is None else keep_music
+        keep_style = ones if keep_style is None else keep_style
+
+        t_hidden = self.time_mlp(sinusoidal_embedding(t, self.d_model))
+        t_cond = self.time_film(t_hidden)
+        t_tokens = self.time_tokens(t_hidden).view(b, 2, self.d_model)
+
+        null = self.null_music[:, :n].expand(b, -1, -1)
+        if music is None or self.music_proj is None:
+            h_music = null
+        else:
+            if music.shape[:2] != (b, n) or music.shape[-1] != self.audio_dim:
+                raise ValueError(
+                    f"music features {tuple(music.shape)} do not match ({b}, {n}, {self.audio_dim})"
+                )
+            h_music = torch.where(keep_music[:, None, None], self.music_proj(music), null)
+        s = self._style(style, keep_style, b)
+        if self.style_concat_proj is not None:
+            h_style = self.style_concat_proj(s)
+            h_music = h_music + (h_style if h_style.ndim == 3 else h_style[:, None, :])
+        tokens = self.music_encoder(h_music)
+        t_cond = t_cond + self.music_pool(tokens.mean(dim=1))
+        memory = self.memory_norm(torch.cat((tokens, t_tokens), dim=1))
+
+        h = self.input_proj(x_t)
+        for i, layer in enumerate(self.layers):
+            mod = None if self.modulations is None else self.modulations[min(i, len(self.modulations) - 1)]
+            h = layer(h, memory, t_cond, s, mod)
+        return self.output_proj(h)

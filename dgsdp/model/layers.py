@@ -1,0 +1,107 @@
+"""Building blocks of the denoiser: rotary positions, attention, FiLM, sinusoidal time embedding."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+class RotaryEmbedding(nn.Module):
+    """Rotary position embedding (RoPE) applied to queries and keys, per head, over frame positions.
+
+    EDGE rotates the layer input before the attention in-projection; we rotate the projected queries and keys
+    (the standard formulation, relative-position exact). Parameter counts are the same.
+    """
+
+    def __init__(self, head_dim: int, base: float = 10000.0) -> None:
+        super().__init__()
+        if head_dim % 2:
+            raise ValueError(f"rotary embedding needs an even head dimension, got {head_dim}")
+        inv_freq = 1.0 / base ** (torch.arange(0, head_dim, 2, dtype=torch.float32) / head_dim)
+        self.register_buffer("inv_freq", inv_freq, persistent=False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """x (B, H, T, Dh) -> same shape, rotated by position."""
+        t = torch.arange(x.shape[-2], device=x.device, dtype=self.inv_freq.dtype)
+        freqs = torch.outer(t, self.inv_freq)  # (T, Dh/2)
+        cos, sin = freqs.cos().to(x.dtype), freqs.sin().to(x.dtype)
+        x1, x2 = x[..., 0::2], x[..., 1::2]
+        out = torch.stack((x1 * cos - x2 * sin, x1 * sin + x2 * cos), dim=-1)
+        return out.flatten(-2)
+
+
+class Attention(nn.Module):
+    """Multi-head attention through ``F.scaled_dot_product_attention``; optional rotary on q and k."""
+
+    def __init__(self, d_model: int, n_heads: int, dropout: float, rotary: bool) -> None:
+        super().__init__()
+        if d_model % n_heads:
+            raise ValueError(f"width {d_model} is not divisible by {n_heads} heads")
+        self.n_heads = n_heads
+        self.q = nn.Linear(d_model, d_model)
+        self.kv = nn.Linear(d_model, 2 * d_model)
+        self.out = nn.Linear(d_model, d_model)
+        self.dropout = dropout
+        self.rotary = RotaryEmbedding(d_model // n_heads) if rotary else None
+
+    def _heads(self, x: torch.Tensor) -> torch.Tensor:
+        b, t, d = x.shape
+        return x.view(b, t, self.n_heads, d // self.n_heads).transpose(1, 2)
+
+    def forward(self, x: torch.Tensor, memory: torch.Tensor | None = None) -> torch.Tensor:
+        """x (B, T, d) attends to ``memory`` (B, S, d), or to itself if None."""
+        src = x if memory is None else memory
+        q = self._heads(self.q(x))
+        k, v = (self._heads(a) for a in self.kv(src).chunk(2, dim=-1))
+        if self.rotary is not None:
+            q, k = self.rotary(q), self.rotary(k)
+        y = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
+        return self.out(y.transpose(1, 2).flatten(2))
+
+
+class FeedForward(nn.Sequential):
+    def __init__(self, d_model: int, ff_dim: int, dropout: float) -> None:
+        super().__init__(
+            nn.Linear(d_model, ff_dim), nn.GELU(), nn.Dropout(dropout), nn.Linear(ff_dim, d_model)
+        )
+
+
+class FiLM(nn.Module):
+    """Feature-wise linear modulation by the time condition: h * (1 + scale) + shift."""
+
+    def __init__(self, d_model: int) -> None:
+        super().__init__()
+        self.proj = nn.Sequential(nn.Mish(), nn.Linear(d_model, 2 * d_model))
+
+    def forward(self, h: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
+        """h (B, T, d), cond (B, d)."""
+        scale, shift = self.proj(cond).unsqueeze(1).chunk(2, dim=-1)
+        return h * (1 + scale) + shift
+
+
+class EncoderLayer(nn.Module):
+    """Pre-norm transformer encoder layer with rotary self-attention (the music encoder)."""
+
+    def __init__(self, d_model: int, n_heads: int, ff_dim: int, dropout: float) -> None:
+        super().__init__()
+        self.norm1, self.norm2 = nn.LayerNorm(d_model), nn.LayerNorm(d_model)
+        self.attn = Attention(d_model, n_heads, dropout, rotary=True)
+        self.ff = FeedForward(d_model, ff_dim, dropout)
+        self.drop = nn.Dropout(dropout)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = x + self.drop(self.attn(self.norm1(x)))
+        return x + self.drop(self.ff(self.norm2(x)))
+
+
+def sinusoidal_embedding(t: torch.Tensor, dim: int) -> torch.Tensor:
+    """Diffusion step t (B,) -> (B, dim) sinusoidal features."""
+    half = dim // 2
+    freqs = torch.exp(
+        -math.log(10000.0) * torch.arange(half, device=t.device, dtype=torch.float32) / (half - 1)
+    )
+    args = t.float()[:, None] * freqs[None]
+    return torch.cat((args.sin(), args.cos()), dim=-1)

@@ -1,0 +1,5 @@
+"""Sampling: DDPM/DDIM with classifier-free guidance and editing masks."""
+
+from dgsdp.sampling.sampler import Condition, Guidance, Sampler
+
+__all__ = ["Condition", "Guidance", "Sampler"]

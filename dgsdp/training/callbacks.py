@@ -1,0 +1,53 @@
+"""Callbacks: periodic sample rendering during training."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+
+log = logging.getLogger(__name__)
+
+
+class SampleRenderCallback(L.Callback):
+    """Every ``every_n_epochs`` validation epochs, sample a few validation windows with the EMA model and write
+    their joint positions (``.npy``) and a video under ``<run>/samples/epochNNNN/``. 0 switches it off."""
+
+    def __init__(self, every_n_epochs: int = 0, num_samples: int = 2, sampling_steps: int = 50) -> None:
+        self.every_n_epochs = every_n_epochs
+        self.num_samples = num_samples
+        self.sampling_steps = sampling_steps
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if not self.every_n_epochs or trainer.sanity_checking or trainer.current_epoch % self.every_n_epochs:
+            return
+        if not trainer.is_global_zero or trainer.datamodule is None:
+            return
+        batch = next(iter(trainer.datamodule.val_dataloader()))
+        n = min(self.num_samples, batch["motion"].shape[0])
+        music = batch["audio"][:n].to(pl_module.device) if "audio" in batch else None
+        genre = batch["genre"][:n].to(pl_module.device)
+        style = pl_module.style_for(genre, random=False)
+        motion = pl_module.sample_batch(
+            music, style, n_frames=batch["motion"].shape[1], batch=n, steps=self.sampling_steps
+        )
+        self.write(Path(trainer.default_root_dir) / "samples" / f"epoch{trainer.current_epoch:04d}", motion)
+
+    @staticmethod
+    def write(folder: Path, motion: torch.Tensor) -> None:
+        from dgsdp.motion import pose_to_joints
+
+        folder.mkdir(parents=True, exist_ok=True)
+        joints = pose_to_joints(motion.float().cpu())
+        for i, j in enumerate(joints):
+            np.save(folder / f"sample{i}.npy", j.numpy())
+            try:
+                from dgsdp.export import render_video
+
+                render_video(folder / f"sample{i}.mp4", j)
+            except ImportError:  # rendering is optional for this hook
+                pass
+        log.info("wrote %d samples to %s", len(joints), folder)
