@@ -1,0 +1,90 @@
+"""Write a motion as an AIST++ motion pickle (y-up SMPL parameters), the format AIST++ tools read.
+
+The file holds ``smpl_poses`` (N, 72) axis-angle, ``smpl_trans`` (N, 3) metres, ``smpl_scaling`` (1,) = 1.0 (so
+``smpl_trans / smpl_scaling`` is metres, as AIST++ readers compute), ``smpl_loss`` 0.0, plus ``joints3d``
+(N, 24, 3) y-up joint positions in metres from our fixed-skeleton forward kinematics (not the licensed SMPL body
+model) and ``fps``.
+
+Frame rate: the motion is written at its own rate (30 FPS for generated motions), without resampling, and ``fps``
+records it. AIST++'s own files are 60 FPS, so a reader that assumes 60 FPS must be told: the project's reader
+takes ``process_motion(poses, trans, source_fps=30, fps=30)``.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dgsdp.errors import DataError
+from dgsdp.motion import (
+    NUM_JOINTS,
+    forward_kinematics,
+    matrix_to_axis_angle,
+    points_z_up_to_y_up,
+    root_rotation_z_up_to_y_up,
+)
+from dgsdp.utils.io import atomic_path
+
+
+def as_motion(
+    rotmats: torch.Tensor | np.ndarray, root_trans: torch.Tensor | np.ndarray
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Check and convert a motion to float64 tensors: rotmats (T, 24, 3, 3), root_trans (T, 3) metres.
+
+    Raises :class:`DataError` for wrong shapes, an empty motion or non-finite values.
+    """
+    rot = torch.as_tensor(rotmats).detach().to("cpu", torch.float64)
+    trans = torch.as_tensor(root_trans).detach().to("cpu", torch.float64)
+    if rot.ndim != 4 or rot.shape[1:] != (NUM_JOINTS, 3, 3) or trans.shape != (rot.shape[0], 3):
+        raise DataError(
+            f"a motion to export needs rotmats (T, 24, 3, 3) and root_trans (T, 3); got {tuple(rot.shape)} and "
+            f"{tuple(trans.shape)} (unpack a batch of 151-d vectors one sequence at a time with unpack_pose)"
+        )
+    if rot.shape[0] == 0:
+        raise DataError("the motion to export has no frames")
+    if not (torch.isfinite(rot).all() and torch.isfinite(trans).all()):
+        raise DataError("the motion to export has NaN or infinite values; check the generated sequence")
+    return rot, trans
+
+
+def motion_to_aistpp(
+    rotmats: torch.Tensor | np.ndarray, root_trans: torch.Tensor | np.ndarray, fps: float = 30
+) -> dict[str, np.ndarray | float]:
+    """The AIST++ motion dict of a z-up motion (rotmats (T, 24, 3, 3), root_trans (T, 3) metres), y-up."""
+    rot, trans = as_motion(rotmats, root_trans)
+    joints_y_up = points_z_up_to_y_up(forward_kinematics(rot, trans))
+    rot_y_up = rot.clone()
+    rot_y_up[:, 0] = root_rotation_z_up_to_y_up(rot[:, 0])
+    poses = matrix_to_axis_angle(rot_y_up).reshape(rot.shape[0], NUM_JOINTS * 3)
+    return {
+        "smpl_poses": poses.numpy().astype(np.float32),
+        "smpl_trans": points_z_up_to_y_up(trans).numpy().astype(np.float32),
+        "smpl_scaling": np.ones(1, dtype=np.float32),
+        "smpl_loss": 0.0,
+        "joints3d": joints_y_up.numpy().astype(np.float32),
+        "fps": float(fps),
+    }
+
+
+def save_aistpp_pkl(
+    path: str | os.PathLike,
+    rotmats: torch.Tensor | np.ndarray,
+    root_trans: torch.Tensor | np.ndarray,
+    fps: float = 30,
+) -> Path:
+    """Write a z-up motion (rotmats (T, 24, 3, 3) local rotations, root_trans (T, 3) metres, at ``fps``) as an
+    AIST++ y-up motion pickle at the same frame rate; atomic (no half-written file). Returns the path."""
+    if fps <= 0:
+        raise DataError(f"fps must be positive, got {fps}")
+    data = motion_to_aistpp(rotmats, root_trans, fps)
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            pickle.dump(data, f, protocol=4)
+            f.flush()
+            os.fsync(f.fileno())
+    return path

@@ -1,0 +1,148 @@
+"""Write a motion as a BVH file (y-up), e.g. for Blender's BVH importer with its default axes (Forward -Z, Up Y).
+
+The hierarchy is the 24-joint SMPL skeleton (``JOINT_NAMES``, ``PARENTS``); OFFSETs are the rest offsets in SMPL's
+y-up rest frame, so the rest pose (all channels zero) is SMPL's T-pose. Leaf joints (feet, head, hands) get an
+End Site half as long as their own bone, continuing it, so that every bone has a length in Blender.
+
+Units: metres by default, so that Blender's importer (which takes the file's numbers as Blender units) gives a
+life-size body at its default scale 1.0; ``units="cm"`` writes centimetres for tools that expect them.
+
+Channels: the root has ``Xposition Yposition Zposition Zrotation Xrotation Yrotation``, every other joint
+``Zrotation Xrotation Yrotation``, in degrees. A BVH channel list means the local rotation is
+``R = Rz(z) @ Rx(x) @ Ry(y)`` acting on column vectors in the parent frame (rotations applied in the listed order,
+each about the axis of the frame rotated by the previous ones). Angles are unwrapped over time (each may be
+shifted by 360 degrees, which leaves the rotation unchanged) so that curves do not jump between frames.
+
+The motion comes in the project's z-up world and is converted to y-up: the root orientation is pre-multiplied by
+the z-up -> y-up rotation and the root position mapped (x, y, z) -> (x, z, -y); local joint rotations are unchanged
+(the offsets already live in the y-up rest frame).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dgsdp.errors import DataError
+from dgsdp.export.aistpp_pkl import as_motion
+from dgsdp.motion import (
+    JOINT_NAMES,
+    NUM_JOINTS,
+    PARENTS,
+    points_z_up_to_y_up,
+    rest_offsets,
+    root_rotation_z_up_to_y_up,
+)
+from dgsdp.utils.io import atomic_write_text
+
+ROTATION_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
+POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
+UNIT_SCALE = {"m": 1.0, "cm": 100.0}
+END_SITE_FRACTION = 0.5
+
+
+def matrix_to_euler_zxy(rotmats: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotations -> (..., 3) angles (z, x, y) in radians with R = Rz(z) @ Rx(x) @ Ry(y).
+
+    x lies in [-pi/2, pi/2]. Near the gimbal configuration (x = +-pi/2) z and y are not separately defined; y is
+    solved from what remains after removing Rz(z) Rx(x), so the recomposed rotation stays exact.
+    """
+    r = np.asarray(rotmats, dtype=np.float64)
+    # R = Rz Rx Ry has R[2, 1] = sin x, (R[0, 1], R[1, 1]) = cos x (-sin z, cos z).
+    x = np.arctan2(r[..., 2, 1], np.hypot(r[..., 0, 1], r[..., 1, 1]))
+    z = np.arctan2(-r[..., 0, 1], r[..., 1, 1])
+    cz, sz = np.cos(z), np.sin(z)
+    # M = Rx(x)^T Rz(z)^T R = Ry(y): y = atan2(M[0, 2], M[0, 0]); only row 0 of M is needed.
+    # Row 0 of Rx^T Rz^T is row 0 of Rz^T = (cz, sz, 0).
+    m00 = cz * r[..., 0, 0] + sz * r[..., 1, 0]
+    m02 = cz * r[..., 0, 2] + sz * r[..., 1, 2]
+    y = np.arctan2(m02, m00)
+    return np.stack((z, x, y), axis=-1)
+
+
+def _children(j: int) -> list[int]:
+    return [c for c in range(NUM_JOINTS) if PARENTS[c] == j]
+
+
+def _hierarchy(offsets: np.ndarray, order: list[int]) -> list[str]:
+    """HIERARCHY lines; appends joints in depth-first file order to ``order``."""
+    lines = ["HIERARCHY"]
+
+    def fmt(v: np.ndarray) -> str:
+        return " ".join(f"{c:.6f}" for c in v)
+
+    def visit(j: int, depth: int) -> None:
+        pad = "  " * depth
+        order.append(j)
+        kind = "ROOT" if PARENTS[j] < 0 else "JOINT"
+        lines.append(f"{pad}{kind} {JOINT_NAMES[j]}")
+        lines.append(f"{pad}{{")
+        lines.append(f"{pad}  OFFSET {fmt(offsets[j])}")
+        channels = ROTATION_CHANNELS if PARENTS[j] >= 0 else POSITION_CHANNELS + ROTATION_CHANNELS
+        lines.append(f"{pad}  CHANNELS {len(channels)} {' '.join(channels)}")
+        kids = _children(j)
+        for c in kids:
+            visit(c, depth + 1)
+        if not kids:
+            lines.append(f"{pad}  End Site")
+            lines.append(f"{pad}  {{")
+            lines.append(f"{pad}    OFFSET {fmt(END_SITE_FRACTION * offsets[j])}")
+            lines.append(f"{pad}  }}")
+        lines.append(f"{pad}}}")
+
+    visit(0, 0)
+    return lines
+
+
+def bvh_text(
+    rotmats: torch.Tensor | np.ndarray,
+    root_trans: torch.Tensor | np.ndarray,
+    fps: float = 30,
+    offsets: torch.Tensor | np.ndarray | None = None,
+    units: str = "m",
+) -> str:
+    """The BVH file contents for a z-up motion (rotmats (T, 24, 3, 3), root_trans (T, 3) metres); see the module
+    docstring for axes, units and channels. ``offsets``: (24, 3) rest offsets in metres, y-up (default SMPL's)."""
+    if units not in UNIT_SCALE:
+        raise DataError(f"BVH units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
+    if not fps > 0:
+        raise DataError(f"fps must be positive, got {fps}")
+    rot, trans = as_motion(rotmats, root_trans)
+    if offsets is None:
+        offsets = rest_offsets(dtype=torch.float64)
+    offs = torch.as_tensor(offsets).detach().to("cpu", torch.float64).numpy().copy()
+    if offs.shape != (NUM_JOINTS, 3) or not np.isfinite(offs).all():
+        raise DataError(f"offsets must be a finite (24, 3) array in metres, got shape {offs.shape}")
+    offs[0] = 0.0  # the root position is the translation itself, as in our forward kinematics
+    scale = UNIT_SCALE[units]
+
+    rot = rot.clone()
+    rot[:, 0] = root_rotation_z_up_to_y_up(rot[:, 0])
+    position = points_z_up_to_y_up(trans).numpy() * scale  # (T, 3)
+    angles_deg = np.degrees(np.unwrap(matrix_to_euler_zxy(rot.numpy()), axis=0))  # (T, 24, 3)
+
+    order: list[int] = []
+    lines = _hierarchy(offs * scale, order)
+    values = np.concatenate((position, angles_deg[:, order].reshape(len(position), -1)), axis=1)
+    lines += ["MOTION", f"Frames: {len(values)}", f"Frame Time: {1.0 / fps:.8f}"]
+    lines += [" ".join(f"{v:.6f}" for v in row) for row in values]
+    return "\n".join(lines) + "\n"
+
+
+def save_bvh(
+    path: str | os.PathLike,
+    rotmats: torch.Tensor | np.ndarray,
+    root_trans: torch.Tensor | np.ndarray,
+    fps: float = 30,
+    offsets: torch.Tensor | np.ndarray | None = None,
+    units: str = "m",
+) -> Path:
+    """Write a z-up motion (rotmats (T, 24, 3, 3) local rotations, root_trans (T, 3) metres, at ``fps``) as a
+    y-up BVH file (atomic). ``units`` is ``"m"`` (Blender at scale 1.0) or ``"cm"``. Returns the path."""
+    path = Path(path)
+    atomic_write_text(path, bvh_text(rotmats, root_trans, fps=fps, offsets=offsets, units=units))
+    return path
+

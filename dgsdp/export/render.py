@@ -1,0 +1,292 @@
+"""Stick-figure videos of a dance, with the music: mp4 through ffmpeg, or a silent GIF when ffmpeg is missing.
+
+The view is a fixed orthographic camera (``Camera``) fitted once to the whole motion, so the dancer never leaves
+the frame and distances on screen stay comparable across frames; a floor grid is drawn at the lowest joint height
+of the motion. Joints are z-up metres (FK output). Bones are coloured by side: left blue, right red, centre grey,
+and drawn far to near.
+
+Audio: the song is decoded with the project's audio loader and muxed as AAC without ``-shortest``, so the audio
+stream keeps the song's full duration. When the song is longer than the motion the last frame is held until the
+song ends (both streams then end together); when the motion is longer, the video continues after the song ends.
+Pass an audio clip cut to the motion's span if only that part should be heard.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import subprocess
+import tempfile
+import warnings
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import soundfile as sf
+import torch
+from PIL import Image, ImageDraw, ImageFont
+
+from dgsdp.audio.io import load_audio
+from dgsdp.errors import ConfigError, DataError, DgsdpError
+from dgsdp.motion import JOINT_NAMES, NUM_JOINTS, PARENTS
+from dgsdp.utils.io import atomic_path
+
+BACKGROUND = (255, 255, 255)
+FLOOR_COLOUR = (200, 200, 200)
+LEFT_COLOUR = (40, 90, 200)
+RIGHT_COLOUR = (210, 50, 50)
+CENTRE_COLOUR = (70, 70, 70)
+TEXT_COLOUR = (0, 0, 0)
+HEAD_JOINT = JOINT_NAMES.index("head")
+HEAD_RADIUS_M = 0.09
+GRID_STEP_M = 0.5
+AUDIO_BITRATE = "192k"
+
+
+def _side_colour(j: int) -> tuple[int, int, int]:
+    name = JOINT_NAMES[j]
+    if name.startswith("left"):
+        return LEFT_COLOUR
+    if name.startswith("right"):
+        return RIGHT_COLOUR
+    return CENTRE_COLOUR
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Orthographic camera looking at ``target`` (z-up metres); ``extent_m`` metres span the shorter image side.
+
+    Azimuth 0 and elevation 0 look along +y (from in front of a body facing -y, SMPL's rest facing in our z-up
+    world): screen right is +x, screen up is +z. A positive azimuth turns the camera counter-clockwise about z
+    (seen from above); a positive elevation raises it, looking down.
+    """
+
+    target: tuple[float, float, float]
+    extent_m: float
+    azimuth_deg: float = 20.0
+    elevation_deg: float = 15.0
+    floor_z: float = 0.0
+
+    def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Unit vectors (right, up, towards the camera), each (3,)."""
+        az, el = math.radians(self.azimuth_deg), math.radians(self.elevation_deg)
+        right = np.array([math.cos(az), math.sin(az), 0.0])
+        towards = np.array([math.cos(el) * math.sin(az), -math.cos(el) * math.cos(az), math.sin(el)])
+        up = np.cross(towards, right)
+        return right, up, towards
+
+    def project(self, points: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+        """(..., 3) z-up metres -> (..., 2) pixel coordinates (x right, y down) in an image of ``size`` (W, H)."""
+        width, height = size
+        right, up, _ = self.axes()
+        rel = np.asarray(points, dtype=np.float64) - np.asarray(self.target, dtype=np.float64)
+        scale = min(width, height) / self.extent_m
+        return np.stack((width / 2 + scale * rel @ right, height / 2 - scale * rel @ up), axis=-1)
+
+    def pixels_per_metre(self, size: tuple[int, int]) -> float:
+        return min(size) / self.extent_m
+
+
+def fit_camera(
+    joints: torch.Tensor | np.ndarray,
+    azimuth_deg: float = 20.0,
+    elevation_deg: float = 15.0,
+    margin: float = 0.15,
+) -> Camera:
+    """A camera that keeps every joint of every frame in view. joints: (T, 24, 3) or (24, 3), z-up metres.
+
+    ``margin`` is the fraction of the view left free around the figure; the floor is at the lowest joint.
+    """
+    pts = _as_joints(joints).reshape(-1, 3)
+    probe = Camera((0.0, 0.0, 0.0), 1.0, azimuth_deg, elevation_deg)
+    right, up, _ = probe.axes()
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    target = (lo + hi) / 2
+    rel = pts - target
+    span = max(np.ptp(rel @ right), np.ptp(rel @ up), 1.0) + 2 * HEAD_RADIUS_M
+    extent = span / max(1.0 - 2 * margin, 0.1)
+    return Camera(tuple(float(v) for v in target), float(extent), azimuth_deg, elevation_deg, float(lo[2]))
+
+
+def _as_joints(joints: torch.Tensor | np.ndarray) -> np.ndarray:
+    arr = joints.detach().cpu().numpy() if torch.is_tensor(joints) else np.asarray(joints)
+    arr = arr.astype(np.float64)
+    if arr.shape[-2:] != (NUM_JOINTS, 3) or arr.ndim not in (2, 3) or arr.size == 0:
+        raise DataError(f"joints must be (T, 24, 3) or (24, 3) z-up metres, got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise DataError("joints have NaN or infinite values; check the generated motion")
+    return arr
+
+
+def _check_size(size: Sequence[int]) -> tuple[int, int]:
+    if len(size) != 2 or min(int(size[0]), int(size[1])) < 16:
+        raise ConfigError(f"render size must be (width, height) of at least 16 pixels each, got {size}")
+    return int(size[0]), int(size[1])
+
+
+def _draw_floor(draw: ImageDraw.ImageDraw, camera: Camera, size: tuple[int, int], width_px: int) -> None:
+    half = camera.extent_m
+    cx, cy = camera.target[0], camera.target[1]
+    start_x = math.floor((cx - half) / GRID_STEP_M) * GRID_STEP_M
+    start_y = math.floor((cy - half) / GRID_STEP_M) * GRID_STEP_M
+    n = int(math.ceil(2 * half / GRID_STEP_M)) + 1
+    z = camera.floor_z
+    for i in range(n + 1):
+        gx, gy = start_x + i * GRID_STEP_M, start_y + i * GRID_STEP_M
+        end_x = start_x + n * GRID_STEP_M
+        end_y = start_y + n * GRID_STEP_M
+        for seg in (((gx, start_y, z), (gx, end_y, z)), ((start_x, gy, z), (end_x, gy, z))):
+            (x0, y0), (x1, y1) = camera.project(np.array(seg), size)
+            draw.line([(x0, y0), (x1, y1)], fill=FLOOR_COLOUR, width=width_px)
+
+
+def render_frame(
+    joints_t: torch.Tensor | np.ndarray,
+    camera: Camera | None = None,
+    size: tuple[int, int] = (480, 480),
+    title: str | None = None,
+) -> np.ndarray:
+    """Draw one pose (24, 3), z-up metres, as a stick figure. Returns an (H, W, 3) uint8 RGB image.
+
+    ``camera`` defaults to one fitted to this pose alone; pass one fitted to the whole motion (``fit_camera``)
+    to keep the view fixed over a video.
+    """
+    pose = _as_joints(joints_t)
+    if pose.ndim != 2:
+        raise DataError(f"render_frame draws one pose (24, 3), got shape {pose.shape}")
+    size = _check_size(size)
+    camera = camera or fit_camera(pose)
+    image = Image.new("RGB", size, BACKGROUND)
+    draw = ImageDraw.Draw(image)
+    line_px = max(1, round(min(size) / 120))
+    _draw_floor(draw, camera, size, max(1, line_px // 2))
+
+    px = camera.project(pose, size)
+    _, _, towards = camera.axes()
+    nearness = pose @ towards
+    bones = list(range(1, NUM_JOINTS))
+    bones.sort(key=lambda j: nearness[j] + nearness[PARENTS[j]])  # far to near
+    for j in bones:
+        p = PARENTS[j]
+        draw.line([tuple(px[p]), tuple(px[j])], fill=_side_colour(j), width=line_px)
+    r = line_px * 0.9
+    for j in range(NUM_JOINTS):
+        x, y = px[j]
+        draw.ellipse([x - r, y - r, x + r, y + r], fill=_side_colour(j))
+    head_r = HEAD_RADIUS_M * camera.pixels_per_metre(size)
+    hx, hy = px[HEAD_JOINT]
+    draw.ellipse([hx - head_r, hy - head_r, hx + head_r, hy + head_r], outline=CENTRE_COLOUR, width=line_px)
+    if title:
+        font = ImageFont.load_default(size=max(10, min(size) // 24))
+        draw.text((line_px * 4, line_px * 3), title, fill=TEXT_COLOUR, font=font)
+    return np.asarray(image, dtype=np.uint8)
+
+
+def ffmpeg_available() -> bool:
+    """Whether an ``ffmpeg`` executable is on PATH."""
+    return shutil.which("ffmpeg") is not None
+
+
+def _frames(joints: np.ndarray, camera: Camera, size: tuple[int, int], title: str | None) -> Iterator[np.ndarray]:
+    for pose in joints:
+        yield render_frame(pose, camera, size, title)
+
+
+def _write_gif(tmp: Path, frames: Iterator[np.ndarray], fps: float) -> None:
+    images = [Image.fromarray(f) for f in frames]
+    # GIF stores delays in hundredths of a second, so 30 FPS plays at about 33 FPS.
+    images[0].save(
+        tmp, format="GIF", save_all=True, append_images=images[1:], duration=1000.0 / fps, loop=0, optimize=False
+    )
+
+
+def _write_mp4(
+    tmp: Path, frames: Iterator[np.ndarray], n_frames: int, fps: float, size: tuple[int, int], audio_path: Path | None
+) -> None:
+    with tempfile.TemporaryDirectory(prefix="dgsdp-render-") as work:
+        pad_frames = 0
+        cmd = ["ffmpeg", "-y", "-hide_banner", "-loglevel", "error"]
+        cmd += ["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{size[0]}x{size[1]}", "-framerate", f"{fps}"]
+        cmd += ["-i", "pipe:0"]
+        if audio_path is not None:
+            wave, rate_hz = load_audio(audio_path, sample_rate=None, mono=False)
+            wav = Path(work) / "audio.wav"
+            sf.write(wav, wave.T, rate_hz, subtype="FLOAT")
+            song_seconds = wave.shape[-1] / rate_hz
+            pad_frames = max(0, math.ceil(song_seconds * fps - 1e-6) - n_frames)
+            cmd += ["-i", str(wav), "-map", "0:v:0", "-map", "1:a:0", "-c:a", "aac", "-b:a", AUDIO_BITRATE]
+        cmd += ["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-c:v", "libx264", "-pix_fmt", "yuv420p"]
+        cmd += ["-movflags", "+faststart", "-f", "mp4", str(tmp)]
+        log_path = Path(work) / "ffmpeg.log"
+        with open(log_path, "wb") as log:
+            proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=log)
+            assert proc.stdin is not None
+            last = None
+            try:
+                for last in frames:
+                    proc.stdin.write(last.tobytes())
+                for _ in range(pad_frames):
+                    proc.stdin.write(last.tobytes())  # hold the last pose until the song ends
+                proc.stdin.close()
+            except BrokenPipeError:
+                pass  # ffmpeg stopped early; its log says why
+            except BaseException:
+                proc.kill()
+                proc.wait()
+                raise
+            code = proc.wait()
+        if code != 0:
+            message = log_path.read_text(errors="replace").strip()[-2000:]
+            raise DgsdpError(
+                f"ffmpeg failed (exit code {code}) while writing the video: {message or 'no message'}. "
+                "Check that your ffmpeg has the libx264 and aac encoders (`ffmpeg -encoders`)."
+            )
+
+
+def render_video(
+    path: str | os.PathLike,
+    joints: torch.Tensor | np.ndarray,
+    fps: float = 30,
+    audio_path: str | os.PathLike | None = None,
+    title: str | None = None,
+    size: tuple[int, int] = (480, 480),
+    camera: Camera | None = None,
+) -> Path:
+    """Render joints (T, 24, 3), z-up metres at ``fps``, as a stick-figure video; returns the path written.
+
+    With ffmpeg: an mp4 (H.264, yuv420p) with the music at ``audio_path`` muxed as AAC (see the module docstring
+    for durations). Without ffmpeg, or when ``path`` ends in ``.gif``: a silent GIF next to ``path`` (with a
+    warning when ffmpeg is missing). The file appears atomically (no half-written video on error).
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in ("", ".mp4", ".gif"):
+        raise ConfigError(f"videos are written as .mp4 (or .gif without ffmpeg); got {path.name!r}")
+    if not fps > 0:
+        raise ConfigError(f"fps must be positive, got {fps}")
+    motion = _as_joints(joints)
+    if motion.ndim != 3:
+        raise DataError(f"render_video needs a motion (T, 24, 3), got shape {motion.shape}")
+    size = _check_size(size)
+    camera = camera or fit_camera(motion)
+    frames = _frames(motion, camera, size, title)
+
+    if suffix == ".gif" or not ffmpeg_available():
+        if suffix != ".gif":
+            warnings.warn(
+                "ffmpeg was not found on PATH: writing a GIF without audio instead of an mp4. "
+                "Install ffmpeg (e.g. `apt install ffmpeg` or `conda install ffmpeg`) for mp4 with music.",
+                stacklevel=2,
+            )
+        out = path.with_suffix(".gif")
+        with atomic_path(out) as tmp:
+            _write_gif(tmp, frames, fps)
+        return out
+
+    out = path.with_suffix(".mp4")
+    audio = Path(audio_path) if audio_path is not None else None
+    with atomic_path(out) as tmp:
+        _write_mp4(tmp, frames, len(motion), fps, size, audio)
+    return out
