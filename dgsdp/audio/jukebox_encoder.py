@@ -352,7 +352,7 @@ class JukeboxEncoder(AudioEncoder):
     def _encode(self, waveform: np.ndarray, music_id: str | None) -> np.ndarray:
         slice_samples = int(round(self.slice_seconds * self.sample_rate))
         n_frames = (waveform.shape[0] * self.fps) // self.sample_rate
-        out = np.zeros((n_frames, self.feature_dim), dtype=np.float32)
+        out: np.ndarray | None = None  # allocated at the first slice, once the model (and its width) is loaded
         filled = 0
         for start in slice_starts(waveform.shape[0], slice_samples):
             piece = waveform[start : start + slice_samples]
@@ -364,6 +364,8 @@ class JukeboxEncoder(AudioEncoder):
             first = int(round(start * self.fps / self.sample_rate))
             piece_frames = (piece.shape[0] * self.fps) // self.sample_rate
             frames = fit_frames(frames, max(1, piece_frames))
+            if out is None:
+                out = np.zeros((n_frames, frames.shape[1]), dtype=np.float32)
             # Frames already written by an earlier slice keep it: they had more context there.
             skip = max(0, filled - first)
             end = min(n_frames, first + frames.shape[0])
@@ -372,6 +374,6 @@ class JukeboxEncoder(AudioEncoder):
                 filled = max(filled, end)
         if n_frames == 0:
             return out
-        if filled < n_frames:
+        if filled < n_frames:  # a rounding gap at the very end: repeat the last frame
             out[filled:] = out[filled - 1] if filled > 0 else 0.0
         return out

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import soundfile as sf
+from audio_synth import write_audio
 
 from dgsdp.audio import audio_duration_seconds, load_audio
 from dgsdp.errors import AudioError
-from audio_synth import write_audio
 
 
 def sine(freq_hz: float, seconds: float, rate_hz: int) -> np.ndarray:
