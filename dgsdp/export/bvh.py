@@ -145,4 +145,3 @@ def save_bvh(
     path = Path(path)
     atomic_write_text(path, bvh_text(rotmats, root_trans, fps=fps, offsets=offsets, units=units))
     return path
-

@@ -171,7 +171,7 @@ def render_frame(
     for j in bones:
         p = PARENTS[j]
         draw.line([tuple(px[p]), tuple(px[j])], fill=_side_colour(j), width=line_px)
-    r = line_px * 0.9
+    r = max(3.0, 1.2 * line_px)
     for j in range(NUM_JOINTS):
         x, y = px[j]
         draw.ellipse([x - r, y - r, x + r, y + r], fill=_side_colour(j))
@@ -189,21 +189,28 @@ def ffmpeg_available() -> bool:
     return shutil.which("ffmpeg") is not None
 
 
-def _frames(joints: np.ndarray, camera: Camera, size: tuple[int, int], title: str | None) -> Iterator[np.ndarray]:
+def _frames(
+    joints: np.ndarray, camera: Camera, size: tuple[int, int], title: str | None
+) -> Iterator[np.ndarray]:
     for pose in joints:
         yield render_frame(pose, camera, size, title)
 
 
 def _write_gif(tmp: Path, frames: Iterator[np.ndarray], fps: float) -> None:
-    images = [Image.fromarray(f) for f in frames]
-    # GIF stores delays in hundredths of a second, so 30 FPS plays at about 33 FPS.
-    images[0].save(
-        tmp, format="GIF", save_all=True, append_images=images[1:], duration=1000.0 / fps, loop=0, optimize=False
-    )
+    """Silent GIF. Delays are stored in hundredths of a second (30 FPS plays at about 33 FPS); identical
+    consecutive frames are merged into one longer frame. Frames are kept in memory as 1 byte per pixel."""
+    images = (Image.fromarray(f).convert("P", palette=Image.Palette.ADAPTIVE, colors=64) for f in frames)
+    first = next(images)
+    first.save(tmp, format="GIF", save_all=True, append_images=images, duration=1000.0 / fps, loop=0)
 
 
 def _write_mp4(
-    tmp: Path, frames: Iterator[np.ndarray], n_frames: int, fps: float, size: tuple[int, int], audio_path: Path | None
+    tmp: Path,
+    frames: Iterator[np.ndarray],
+    n_frames: int,
+    fps: float,
+    size: tuple[int, int],
+    audio_path: Path | None,
 ) -> None:
     with tempfile.TemporaryDirectory(prefix="dgsdp-render-") as work:
         pad_frames = 0
