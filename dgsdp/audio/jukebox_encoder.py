@@ -352,7 +352,9 @@ class JukeboxEncoder(AudioEncoder):
     def _encode(self, waveform: np.ndarray, music_id: str | None) -> np.ndarray:
         slice_samples = int(round(self.slice_seconds * self.sample_rate))
         n_frames = (waveform.shape[0] * self.fps) // self.sample_rate
-        out: np.ndarray | None = None  # allocated at the first slice, once the model (and its width) is loaded
+        out: np.ndarray | None = (
+            None  # allocated at the first slice, once the model (and its width) is loaded
+        )
         filled = 0
         for start in slice_starts(waveform.shape[0], slice_samples):
             piece = waveform[start : start + slice_samples]
