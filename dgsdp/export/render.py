@@ -13,6 +13,7 @@ Pass an audio clip cut to the motion's span if only that part should be heard.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import shutil
@@ -43,6 +44,11 @@ HEAD_JOINT = JOINT_NAMES.index("head")
 HEAD_RADIUS_M = 0.09
 GRID_STEP_M = 0.5
 AUDIO_BITRATE = "192k"
+
+
+@functools.lru_cache(maxsize=8)
+def _font(size_px: int) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
+    return ImageFont.load_default(size=size_px)
 
 
 def _side_colour(j: int) -> tuple[int, int, int]:
@@ -103,9 +109,13 @@ def fit_camera(
     probe = Camera((0.0, 0.0, 0.0), 1.0, azimuth_deg, elevation_deg)
     right, up, _ = probe.axes()
     lo, hi = pts.min(axis=0), pts.max(axis=0)
-    target = (lo + hi) / 2
-    rel = pts - target
-    span = max(np.ptp(rel @ right), np.ptp(rel @ up), 1.0) + 2 * HEAD_RADIUS_M
+    along_right, along_up = pts @ right, pts @ up
+    centre_right = (along_right.min() + along_right.max()) / 2
+    centre_up = (along_up.min() + along_up.max()) / 2
+    # The point of the box's vertical centre line that projects to the centre of the on-screen box.
+    middle = (lo + hi) / 2
+    target = middle + right * (centre_right - middle @ right) + up * (centre_up - middle @ up)
+    span = max(np.ptp(along_right), np.ptp(along_up), 1.0) + 2 * HEAD_RADIUS_M
     extent = span / max(1.0 - 2 * margin, 0.1)
     return Camera(tuple(float(v) for v in target), float(extent), azimuth_deg, elevation_deg, float(lo[2]))
 
@@ -179,7 +189,7 @@ def render_frame(
     hx, hy = px[HEAD_JOINT]
     draw.ellipse([hx - head_r, hy - head_r, hx + head_r, hy + head_r], outline=CENTRE_COLOUR, width=line_px)
     if title:
-        font = ImageFont.load_default(size=max(10, min(size) // 24))
+        font = _font(max(10, min(size) // 24))
         draw.text((line_px * 4, line_px * 3), title, fill=TEXT_COLOUR, font=font)
     return np.asarray(image, dtype=np.uint8)
 

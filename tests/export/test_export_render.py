@@ -83,6 +83,19 @@ def test_camera_axes_hand_worked():
     np.testing.assert_allclose(top.project(np.array([0.5, 0.5, 3.0]), size), [75.0, 25.0], atol=1e-9)
 
 
+def test_fitted_camera_keeps_the_dance_in_view():
+    joints = dancing(40).numpy()
+    joints[:, :, 0] += 3.0  # far from the origin, travelling
+    size = (120, 90)
+    cam = render.fit_camera(joints, azimuth_deg=35.0, elevation_deg=25.0, margin=0.1)
+    px = cam.project(joints, size)
+    assert (px >= 0).all() and (px[..., 0] <= size[0]).all() and (px[..., 1] <= size[1]).all()
+    # Centred: the on-screen box of all joints has its middle at the image centre.
+    box_middle = (px.reshape(-1, 2).min(0) + px.reshape(-1, 2).max(0)) / 2
+    np.testing.assert_allclose(box_middle, [60.0, 45.0], atol=1e-6)
+    assert cam.floor_z == pytest.approx(joints[..., 2].min())
+
+
 def test_frames_differ_and_title():
     cam = render.fit_camera(standing_pose())
     a = render_frame(standing_pose(), cam, size=(96, 96))
