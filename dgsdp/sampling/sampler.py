@@ -24,8 +24,27 @@ StepCallback = Callable[[torch.Tensor, int], torch.Tensor]
 
 @dataclass
 class Guidance:
+    """Guidance weights, optionally ramped up over the first steps and capped near the end when editing.
+
+    ramp_fraction: the weights rise linearly from 0 to their value over this fraction of the sampling steps
+    (EDGE's long-form sampling: 0.5). edit_cap_below_t: with a mask, weights above 1 are capped at 1 for
+    diffusion steps t below this value (EDGE's inpainting: 100); 0 = off.
+    """
+
     music_weight: float = 2.0
     style_weight: float = 1.0
+    ramp_fraction: float = 0.0
+    edit_cap_below_t: int = 0
+
+    def at(self, step: int, n_steps: int, t: int, masked: bool) -> Guidance:
+        """The plain weights used at sampling step ``step`` (0-based) of ``n_steps``, diffusion step ``t``."""
+        scale = 1.0
+        if self.ramp_fraction > 0:
+            scale = min(1.0, step / max(self.ramp_fraction * n_steps, 1e-9))
+        music, style = self.music_weight * scale, self.style_weight * scale
+        if masked and t < self.edit_cap_below_t:
+            music, style = min(music, 1.0), min(style, 1.0)
+        return Guidance(music, style)
 
 
 @dataclass
@@ -120,7 +139,7 @@ class Sampler:
         for i, t_now in enumerate(tqdm(ts, desc="sampling", leave=False, disable=not progress)):
             t_next = ts[i + 1] if i + 1 < len(ts) else -1
             t = torch.full((b,), t_now, device=device, dtype=torch.long)
-            x0 = self.predict_x0(x, t, cond, guidance)
+            x0 = self.predict_x0(x, t, cond, guidance.at(i, len(ts), t_now, masked=mask is not None))
             if t_next < 0:
                 x = x0
             elif method == "ddpm":

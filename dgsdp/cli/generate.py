@@ -1,0 +1,178 @@
+"""``python generate.py``: dance to songs with a trained checkpoint, optionally editing a given motion.
+
+Reads the checkpoint, the style and any given motion once (a problem with them stops the run with one clear
+message), then generates every song; a song that fails (undecodable, too long, keyframes outside it, ...) is
+reported at the end while the other songs are still written. The exit code is non-zero if anything failed.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+from tqdm.auto import tqdm
+
+from dgsdp.cli.config import CONFIG_DIR
+from dgsdp.editing import check_task, load_motion_file
+from dgsdp.errors import ConfigError, DgsdpError
+from dgsdp.generation.pipeline import DanceGenerator, EditSettings, SamplingSettings, find_songs, write_motion
+from dgsdp.sampling import Guidance
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class GenerationReport:
+    """Files written per song and the error message of every song that failed."""
+
+    written: dict[str, list[Path]] = field(default_factory=dict)
+    errors: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+
+def _list(value: Any) -> list[Any] | None:
+    if value is None:
+        return None
+    if isinstance(value, str | int | float):
+        return [value]
+    return list(OmegaConf.to_container(value) if OmegaConf.is_config(value) else value)
+
+
+def sampling_settings(cfg: DictConfig) -> SamplingSettings:
+    method = str(cfg.sampler).lower()
+    if method not in ("ddim", "ddpm"):
+        raise ConfigError(f"sampler={cfg.sampler!r} is not a sampler; use sampler=ddim or sampler=ddpm")
+    if int(cfg.steps) < 1:
+        raise ConfigError(f"steps must be at least 1, got {cfg.steps}")
+    return SamplingSettings(
+        method=method,
+        steps=int(cfg.steps),
+        eta=float(cfg.eta),
+        guidance=Guidance(
+            music_weight=float(cfg.guidance.music),
+            style_weight=float(cfg.guidance.style),
+            edit_cap_below_t=int(cfg.guidance.edit_cap_below_t),
+        ),
+        longform_ramp_fraction=float(cfg.guidance.longform_ramp_fraction),
+        window_frames=int(cfg.longform.window_frames),
+        stride_frames=int(cfg.longform.stride_frames),
+        chunk_size=int(cfg.longform.chunk_size),
+        bf16=bool(cfg.bf16),
+    )
+
+
+def edit_settings(cfg: DictConfig, fps: int) -> EditSettings:
+    """The editing task with its given motion read from file (one clear error for a bad file)."""
+    task = check_task(cfg.task)
+    file = {"seed_motion": cfg.seed_motion_file, "inbetween": cfg.seed_motion_file}.get(task)
+    if task == "keyframes":
+        file = cfg.keyframes_file
+    file = file or cfg.motion_file
+    motion = load_motion_file(file, fps=fps) if task != "none" and file else None
+    return EditSettings(
+        task=task,
+        motion=motion,
+        seed_frames=int(cfg.seed_frames),
+        end_frames=int(cfg.end_frames),
+        inpaint_fraction=float(cfg.inpaint_fraction),
+        joints=_list(cfg.joints),
+        with_root=bool(cfg.with_root),
+        keyframes=[int(k) for k in _list(cfg.keyframes) or []] or None,
+        keyframe_seconds=[float(s) for s in _list(cfg.keyframe_seconds) or []] or None,
+    )
+
+
+def _safe_name(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "song"
+
+
+def generate(cfg: DictConfig) -> GenerationReport:
+    """Run one generation job from a composed ``generate`` config; returns what was written and what failed."""
+    if not cfg.get("checkpoint"):
+        raise ConfigError("give checkpoint=<path of a trained model's .ckpt file>")
+    songs = find_songs(_list(cfg.music) if not isinstance(cfg.music, str) else cfg.music)
+    generator = DanceGenerator.from_checkpoint(
+        cfg.checkpoint,
+        cache_dir=cfg.paths.cache_dir,
+        device=str(cfg.device),
+        max_song_seconds=None if cfg.max_song_seconds is None else float(cfg.max_song_seconds),
+    )
+    sampling = sampling_settings(cfg)
+    plan = generator.resolve_style(cfg.style)
+    edit = edit_settings(cfg, generator.fps)
+    num_samples = int(cfg.num_samples)
+    if num_samples < 1:
+        raise ConfigError(f"num_samples must be at least 1, got {num_samples}")
+    out_dir = Path(cfg.output_dir).expanduser()
+    formats = [str(f) for f in _list(cfg.formats) or []]
+    report = GenerationReport()
+    used: set[str] = set()
+    bar = tqdm(songs, desc="songs", unit="song", disable=not cfg.progress)
+    for song in bar:
+        bar.set_postfix_str(song.name)
+        stem = _safe_name(song.stem)
+        while stem in used:
+            stem += "_"
+        used.add(stem)
+        try:
+            music, n_frames = generator.music_features(song, cfg.seconds)
+            style = generator.style_frames(plan, n_frames, float(cfg.schedule_blend_seconds))
+            mask, known = generator.edit_inputs(edit, n_frames)
+            motions = generator.generate(
+                n_frames,
+                music=music,
+                style=style,
+                mask=mask,
+                known=known,
+                num_samples=num_samples,
+                sampling=sampling,
+                seed=int(cfg.seed),
+                progress=bool(cfg.progress),
+            )
+            files: list[Path] = []
+            for k, motion in enumerate(motions):
+                name = stem if num_samples == 1 else f"{stem}_sample{k}"
+                title = f"{song.stem} | {plan.text}" if plan.text else song.stem
+                files += write_motion(
+                    motion, out_dir / name, fps=generator.fps, audio_path=song, formats=formats, title=title
+                )
+            report.written[str(song)] = files
+        except DgsdpError as e:
+            log.error("%s: %s", song, e)
+            report.errors[str(song)] = str(e)
+    return report
+
+
+def print_report(report: GenerationReport) -> None:
+    for song, files in report.written.items():
+        print(f"{song}:")
+        for f in files:
+            print(f"  {f}")
+    if report.errors:
+        print(f"{len(report.errors)} song(s) failed:")
+        for song, message in report.errors.items():
+            print(f"  {song}: {message}")
+
+
+@hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="generate")
+def main(cfg: DictConfig) -> None:
+    try:
+        report = generate(cfg)
+    except DgsdpError as e:
+        log.error("%s", e)
+        raise SystemExit(f"error: {e}") from None
+    print_report(report)
+    if not report.ok:
+        raise SystemExit(1)
+
+
+if __name__ == "__main__":
+    main()

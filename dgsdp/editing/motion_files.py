@@ -1,0 +1,73 @@
+"""Given motions for editing (seed motion, keyframes, a body part to keep) read from files.
+
+Accepted: ``.npy`` holding 151-d pose vectors ``(N, 151)`` (unnormalised, z-up, 30 FPS, as the project
+writes them), or ``.pkl`` holding either such an array or an AIST++ motion dict (``smpl_poses (N, 72)``,
+``smpl_trans (N, 3)``, ``smpl_scaling``; 60 FPS unless the dict says ``fps``, as our exported pickles do).
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dgsdp.data.aistpp import load_motion_pkl, process_motion
+from dgsdp.errors import DataError
+from dgsdp.motion import POSE_DIM
+
+MOTION_FILE_SUFFIXES = (".npy", ".pkl")
+AISTPP_SOURCE_FPS = 60
+
+
+def _as_pose_array(data: object, path: Path) -> torch.Tensor:
+    arr = np.asarray(data)
+    if arr.ndim == 1 and arr.shape[0] == POSE_DIM:
+        arr = arr[None]
+    if (
+        arr.ndim != 2
+        or arr.shape[1] != POSE_DIM
+        or arr.shape[0] == 0
+        or not np.issubdtype(arr.dtype, np.number)
+    ):
+        raise DataError(
+            f"motion file {path} holds an array of shape {arr.shape} ({arr.dtype}); expected 151-d pose vectors "
+            f"(N, {POSE_DIM}) (contacts, root translation, 24 x 6D rotations; z-up, 30 FPS) or an AIST++ "
+            "motion pickle with smpl_poses (N, 72) and smpl_trans (N, 3)"
+        )
+    if not np.isfinite(arr).all():
+        raise DataError(f"motion file {path} has NaN or infinite values")
+    return torch.from_numpy(arr.astype(np.float32))
+
+
+def load_motion_file(path: str | os.PathLike, fps: int = 30) -> torch.Tensor:
+    """Read a motion as unnormalised 151-d pose vectors ``(N, 151)`` at ``fps``; one DataError for a bad file."""
+    path = Path(path).expanduser()
+    if not path.is_file():
+        raise DataError(f"motion file {path} does not exist; check the path")
+    suffix = path.suffix.lower()
+    if suffix not in MOTION_FILE_SUFFIXES:
+        raise DataError(
+            f"motion file {path}: unsupported type {suffix!r}; give a .npy of (N, {POSE_DIM}) pose vectors "
+            "or an AIST++ .pkl motion"
+        )
+    if suffix == ".npy":
+        try:
+            data = np.load(path, allow_pickle=False)
+        except Exception as e:  # noqa: BLE001 - any failure here means an unreadable file for the user
+            raise DataError(f"cannot read motion file {path} ({type(e).__name__}: {e})") from e
+        return _as_pose_array(data, path)
+    try:
+        with open(path, "rb") as f:
+            data = pickle.load(f)
+    except Exception as e:  # noqa: BLE001
+        raise DataError(f"cannot read motion file {path} ({type(e).__name__}: {e})") from e
+    if not isinstance(data, dict):
+        return _as_pose_array(data, path)
+    source_fps = int(round(float(data.get("fps", AISTPP_SOURCE_FPS))))
+    poses, trans_m = load_motion_pkl(path)
+    if source_fps % fps:
+        raise DataError(f"motion file {path} is at {source_fps} FPS, which is not a multiple of {fps} FPS")
+    return torch.from_numpy(process_motion(poses, trans_m, source_fps=source_fps, fps=fps))

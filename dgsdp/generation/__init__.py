@@ -1,0 +1,39 @@
+"""Generation: long-form sampling of whole songs, style schedules, and the pipeline behind generate.py."""
+
+from dgsdp.generation.longform import (
+    ChunkedDenoiser,
+    WindowLayout,
+    cut_windows,
+    sample_long,
+    share_overlaps,
+    stitch_windows,
+)
+from dgsdp.generation.pipeline import (
+    DanceGenerator,
+    EditSettings,
+    SamplingSettings,
+    StylePlan,
+    find_songs,
+    write_motion,
+)
+from dgsdp.generation.schedule import StyleSpan, is_schedule, parse_schedule, schedule_styles, span_weights
+
+__all__ = [
+    "ChunkedDenoiser",
+    "DanceGenerator",
+    "EditSettings",
+    "SamplingSettings",
+    "StylePlan",
+    "StyleSpan",
+    "WindowLayout",
+    "cut_windows",
+    "find_songs",
+    "is_schedule",
+    "parse_schedule",
+    "sample_long",
+    "schedule_styles",
+    "share_overlaps",
+    "span_weights",
+    "stitch_windows",
+    "write_motion",
+]

@@ -1,0 +1,224 @@
+"""Long-form generation (EDGE): a dance of any length from a batch of overlapping windows sampled together.
+
+The motion is cut into consecutive windows of ``window`` frames (5 s) starting ``stride`` frames (2.5 s) apart,
+padded at the end so that the windows cover it. All windows are denoised in one batch; after every sampling step
+with t > 0 the first ``window - stride`` frames of window i+1 are overwritten with the last frames of window i,
+so neighbours agree on their overlap. Afterwards the windows are stitched: root translation cross-faded with a
+linear ramp over the overlap, joint rotations slerped with the same 0..1 weights, foot contacts taken from the
+window whose ramp weight is larger. The result is cropped to the requested length. A motion shorter than one
+window is sampled as one padded window and cropped.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from dgsdp.motion import MinMaxNormalizer, matrix_slerp, matrix_to_6d, sixd_to_matrix
+from dgsdp.motion.representation import CONTACT_CHANNELS, POSE_DIM, ROOT_CHANNELS, ROTATION_CHANNELS
+from dgsdp.motion.skeleton import NUM_JOINTS
+from dgsdp.sampling import Condition, Guidance, Sampler
+
+
+@dataclass(frozen=True)
+class WindowLayout:
+    """Where the windows of a long motion lie: ``n_windows`` of ``window`` frames, ``stride`` apart."""
+
+    n_frames: int
+    window: int
+    stride: int
+
+    def __post_init__(self) -> None:
+        if self.n_frames <= 0:
+            raise ValueError(f"a motion needs at least one frame, got {self.n_frames}")
+        if not 0 < self.stride <= self.window:
+            raise ValueError(f"the stride must lie in 1..window ({self.window}), got {self.stride}")
+
+    @property
+    def n_windows(self) -> int:
+        return max(1, math.ceil((self.n_frames - self.window) / self.stride) + 1)
+
+    @property
+    def overlap(self) -> int:
+        return self.window - self.stride
+
+    @property
+    def padded_frames(self) -> int:
+        """Frames the windows cover: ``window + stride * (n_windows - 1)`` (>= n_frames)."""
+        return self.window + self.stride * (self.n_windows - 1)
+
+    def starts(self) -> list[int]:
+        return [i * self.stride for i in range(self.n_windows)]
+
+
+def pad_frames(x: torch.Tensor, n_frames: int, value: float | None = None) -> torch.Tensor:
+    """Pad (T, ...) to ``n_frames`` rows by repeating the last row (``value=None``) or with a constant."""
+    t = x.shape[0]
+    if t >= n_frames:
+        return x[:n_frames]
+    if value is None:
+        pad = x[-1:].expand(n_frames - t, *x.shape[1:])
+    else:
+        pad = torch.full((n_frames - t, *x.shape[1:]), value, dtype=x.dtype, device=x.device)
+    return torch.cat([x, pad], dim=0)
+
+
+def cut_windows(x: torch.Tensor, layout: WindowLayout) -> torch.Tensor:
+    """(layout.padded_frames, ...) -> (n_windows, window, ...)."""
+    return torch.stack([x[s : s + layout.window] for s in layout.starts()])
+
+
+def share_overlaps(x: torch.Tensor, n_windows: int, stride: int) -> torch.Tensor:
+    """Overwrite the first frames of window i+1 with the last frames of window i.
+
+    x: (S * n_windows, window, C), the windows of S samples one after the other. Returns a new tensor.
+    """
+    if n_windows < 2:
+        return x
+    s = x.shape[0] // n_windows
+    w = x.reshape(s, n_windows, *x.shape[1:]).clone()
+    overlap = x.shape[1] - stride
+    w[:, 1:, :overlap] = w[:, :-1, stride:]
+    return w.reshape(x.shape)
+
+
+def stitch_windows(windows: torch.Tensor, stride: int) -> torch.Tensor:
+    """Stitch unnormalised windows (n, L, 151) into one motion (L + stride * (n - 1), 151).
+
+    Over each overlap the ramp weight w runs linearly from 0 (earlier window) to 1 (later window): root
+    translation is (1 - w) a + w b, joint rotations are slerped with weight w, contacts come from the earlier
+    window where w < 0.5 and from the later one elsewhere. Frames outside overlaps are kept as they are.
+    """
+    n, length, _ = windows.shape
+    overlap = length - stride
+    out = windows[0].clone()
+    if overlap > 0:
+        ramp = torch.linspace(0, 1, overlap, dtype=windows.dtype, device=windows.device)
+    for i in range(1, n):
+        nxt = windows[i]
+        start = i * stride
+        if overlap > 0:
+            a, b = out[start:], nxt[:overlap]
+            mixed = a.clone()
+            w = ramp[:, None]
+            mixed[:, ROOT_CHANNELS] = (1 - w) * a[:, ROOT_CHANNELS] + w * b[:, ROOT_CHANNELS]
+            mixed[:, CONTACT_CHANNELS] = torch.where(w < 0.5, a[:, CONTACT_CHANNELS], b[:, CONTACT_CHANNELS])
+            ra = sixd_to_matrix(a[:, ROTATION_CHANNELS].reshape(overlap, NUM_JOINTS, 6))
+            rb = sixd_to_matrix(b[:, ROTATION_CHANNELS].reshape(overlap, NUM_JOINTS, 6))
+            rot = matrix_slerp(ra, rb, ramp[:, None].expand(overlap, NUM_JOINTS))
+            mixed[:, ROTATION_CHANNELS] = matrix_to_6d(rot).reshape(overlap, NUM_JOINTS * 6)
+            # The ends of the ramp are exactly one window: keep its values untouched.
+            mixed[0] = a[0]
+            mixed[-1] = b[-1]
+            out = torch.cat([out[:start], mixed, nxt[overlap:]], dim=0)
+        else:
+            out = torch.cat([out, nxt], dim=0)
+    return out
+
+
+class ChunkedDenoiser(nn.Module):
+    """Runs a denoiser over a large batch in chunks of ``chunk_size`` items, to bound memory."""
+
+    def __init__(self, denoiser: nn.Module, chunk_size: int) -> None:
+        super().__init__()
+        self.denoiser = denoiser
+        self.chunk_size = int(chunk_size)
+
+    def forward(self, x_t, t, music=None, style=None, keep_music=None, keep_style=None) -> torch.Tensor:
+        b = x_t.shape[0]
+        if self.chunk_size <= 0 or b <= self.chunk_size:
+            return self.denoiser(x_t, t, music, style, keep_music, keep_style)
+        outs = []
+        for i in range(0, b, self.chunk_size):
+            sl = slice(i, i + self.chunk_size)
+
+            def part(v: torch.Tensor | None, sl: slice = sl) -> torch.Tensor | None:
+                return None if v is None else v[sl]
+
+            outs.append(
+                self.denoiser(x_t[sl], t[sl], part(music), part(style), part(keep_music), part(keep_style))
+            )
+        return torch.cat(outs)
+
+
+def sample_long(
+    sampler: Sampler,
+    normalizer: MinMaxNormalizer,
+    n_frames: int,
+    *,
+    music: torch.Tensor | None = None,
+    style: torch.Tensor | None = None,
+    num_samples: int = 1,
+    window: int = 150,
+    stride: int = 75,
+    mask: torch.Tensor | None = None,
+    known: torch.Tensor | None = None,
+    method: str = "ddim",
+    steps: int | None = 50,
+    eta: float = 1.0,
+    guidance: Guidance | None = None,
+    chunk_size: int = 0,
+    generator: torch.Generator | None = None,
+    device: torch.device | str = "cpu",
+    progress: bool = False,
+) -> torch.Tensor:
+    """Generate ``num_samples`` unnormalised motions (S, n_frames, 151) of any length.
+
+    music: (n_frames, Da) features at 30 FPS or None; style: (ds,), per-frame (n_frames, ds) or None;
+    mask / known: (n_frames, 151) editing mask (1 = given) and the given unnormalised motion.
+    Windows of ``window`` frames ``stride`` apart; ``chunk_size`` > 0 bounds the denoiser's batch.
+    The given channels of the result equal ``known`` after normalisation round-off (values outside the
+    training range are clipped by the normaliser).
+    """
+    layout = WindowLayout(n_frames, window, stride)
+    n_win, total = layout.n_windows, layout.padded_frames
+    device = torch.device(device)
+
+    def windows_of(x: torch.Tensor | None, pad_value: float | None = None) -> torch.Tensor | None:
+        if x is None:
+            return None
+        w = cut_windows(pad_frames(x.to(device), total, pad_value), layout)
+        return w.repeat(num_samples, *([1] * (w.ndim - 1)))
+
+    cond_music = windows_of(music)
+    if style is not None and style.ndim == 1:
+        cond_style = style.to(device)[None].expand(n_win * num_samples, -1).contiguous()
+    else:
+        cond_style = windows_of(style)
+    win_mask = win_known = None
+    if mask is not None:
+        if known is None:
+            raise ValueError("a mask needs the known motion it refers to")
+        norm_known = normalizer.normalize(known.to(device=device, dtype=torch.float32))
+        win_mask = windows_of(mask.to(torch.float32), pad_value=0.0)
+        win_known = windows_of(norm_known, pad_value=0.0)
+
+    def consistency(x: torch.Tensor, t_next: int) -> torch.Tensor:
+        return share_overlaps(x, n_win, stride) if t_next > 0 else x
+
+    denoiser = ChunkedDenoiser(sampler.denoiser, chunk_size) if chunk_size > 0 else sampler.denoiser
+    run = Sampler(denoiser, sampler.diffusion, style_guidance=sampler.style_guidance)
+    x = run.sample(
+        (num_samples * n_win, window, POSE_DIM),
+        Condition(cond_music, cond_style),
+        method=method,
+        steps=steps,
+        eta=eta,
+        guidance=guidance,
+        mask=win_mask,
+        known=win_known,
+        step_callback=consistency if n_win > 1 else None,
+        generator=generator,
+        device=device,
+        progress=progress,
+    )
+    motion = normalizer.unnormalize(x).reshape(num_samples, n_win, window, POSE_DIM)
+    out = torch.stack([stitch_windows(motion[s], stride)[:n_frames] for s in range(num_samples)])
+    if mask is not None:
+        # Stitching blends rotations through matrices; hand back the given values exactly as the sampler did.
+        given = normalizer.unnormalize(norm_known)
+        out = torch.where(mask.to(device).bool(), given, out)
+    return out

@@ -1,0 +1,368 @@
+"""From a checkpoint, songs and a style to dance files: the generation pipeline behind ``python generate.py``.
+
+:class:`DanceGenerator` holds a trained model with the audio encoder and style embedder it was trained with; it
+turns a song into music features, a style string (genre, free text or schedule) into style vectors, an editing
+task into a mask and known motion, and samples whole songs with long-form generation. :func:`write_motion`
+writes one motion as an AIST++ pickle, a BVH, a video and the raw 151-d array.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from dgsdp.audio import AudioEncoder, FeatureCache, audio_duration_seconds
+from dgsdp.editing import build_mask, check_task, place_known
+from dgsdp.errors import AudioError, ConfigError
+from dgsdp.generation.longform import sample_long
+from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styles
+from dgsdp.motion import POSE_DIM, pose_to_joints, unpack_pose
+from dgsdp.sampling import Guidance
+from dgsdp.training.module import DanceDiffusion, load_checkpoint
+from dgsdp.utils.io import atomic_path
+
+log = logging.getLogger(__name__)
+
+AUDIO_SUFFIXES = (".wav", ".mp3", ".ogg", ".flac")
+
+
+@dataclass
+class SamplingSettings:
+    """How to sample: sampler ``method`` (ddim/ddpm), ``steps``, ``eta``, guidance, windows and batching.
+
+    ``longform_ramp_fraction`` ramps the guidance weights up over that fraction of the steps when a motion
+    needs more than one window (EDGE: 0.5). ``chunk_size`` > 0 bounds the denoiser's batch (long songs).
+    """
+
+    method: str = "ddim"
+    steps: int = 50
+    eta: float = 1.0
+    guidance: Guidance = field(default_factory=Guidance)
+    longform_ramp_fraction: float = 0.5
+    window_frames: int = 150
+    stride_frames: int = 75
+    chunk_size: int = 0
+    bf16: bool = False
+
+
+@dataclass
+class EditSettings:
+    """An editing task (see :mod:`dgsdp.editing.masks`) and its inputs; ``motion`` is the given motion."""
+
+    task: str = "none"
+    motion: torch.Tensor | None = None
+    seed_frames: int = 30
+    end_frames: int = 30
+    inpaint_fraction: float = 0.7
+    joints: Sequence[int | str] | None = None
+    with_root: bool = False
+    keyframes: Sequence[int] | None = None
+    keyframe_seconds: Sequence[float] | None = None
+
+    def needs_motion(self) -> bool:
+        return check_task(self.task) != "none"
+
+
+@dataclass
+class StylePlan:
+    """A resolved style: one vector (ds,), a schedule (spans, embedded per song length), or none."""
+
+    text: str | None
+    vector: torch.Tensor | None = None
+    spans: list[Any] | None = None
+
+
+def find_songs(music: str | os.PathLike | Sequence[str | os.PathLike] | None) -> list[Path]:
+    """The audio files named by ``music``: a file, a folder (its audio files, sorted) or a list of either."""
+    if music is None or (isinstance(music, str) and not music.strip()):
+        raise ConfigError("give music=<audio file, folder or [list of files]> (wav, mp3, ogg or flac)")
+    items = [music] if isinstance(music, str | os.PathLike) else list(music)
+    songs: list[Path] = []
+    for item in items:
+        p = Path(str(item)).expanduser()
+        if p.is_dir():
+            found = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in AUDIO_SUFFIXES)
+            if not found:
+                raise ConfigError(f"music folder {p} has no audio files ({', '.join(AUDIO_SUFFIXES)})")
+            songs += found
+        else:
+            songs.append(p)  # missing or undecodable files are reported per song
+    if not songs:
+        raise ConfigError("music= names no audio files")
+    return songs
+
+
+class DanceGenerator:
+    """A trained model with its audio encoder and style embedder, ready to dance to whole songs."""
+
+    def __init__(
+        self,
+        model: DanceDiffusion,
+        *,
+        cache_dir: str | os.PathLike,
+        device: torch.device | str = "cpu",
+        max_song_seconds: float | None = None,
+    ) -> None:
+        self.model = model.to(device).eval()
+        self.device = torch.device(device)
+        self.config: dict[str, Any] = dict(model.hparams.get("config") or {})
+        self.fps = int(model.hparams.get("data", {}).get("fps", 30))
+        self.window = int(model.hparams.get("data", {}).get("window_frames", model.denoiser.seq_len))
+        self.cache = FeatureCache(cache_dir)
+        self.cache_dir = Path(cache_dir)
+        self.max_song_seconds = max_song_seconds
+        self.audio_encoder = self._audio_encoder()
+        self._embedder: Any = None
+
+    @classmethod
+    def from_checkpoint(
+        cls,
+        path: str | os.PathLike,
+        *,
+        cache_dir: str | os.PathLike,
+        device: str = "cpu",
+        max_song_seconds: float | None = None,
+    ) -> DanceGenerator:
+        return cls(
+            load_checkpoint(str(path)),
+            cache_dir=cache_dir,
+            device=resolve_device(device),
+            max_song_seconds=max_song_seconds,
+        )
+
+    # --- conditioning ---------------------------------------------------------------------------------------
+    def _audio_encoder(self) -> AudioEncoder | None:
+        audio_dim = int(self.model.hparams["conditioning"].get("audio_dim", 0))
+        audio_cfg = self.config.get("audio")
+        if not audio_dim:
+            return None
+        if not audio_cfg or audio_cfg.get("_target_") is None:
+            raise ConfigError(
+                "the checkpoint's config does not say which audio encoder it was trained with (config.audio)"
+            )
+        from hydra.utils import instantiate
+
+        encoder = instantiate(audio_cfg)
+        if int(encoder.feature_dim) != audio_dim:
+            raise ConfigError(
+                f"the audio encoder in the checkpoint's config gives {encoder.feature_dim}-d features, but the "
+                f"model was trained on {audio_dim}-d features"
+            )
+        return encoder
+
+    def check_duration(self, path: Path) -> float:
+        """The song's length in seconds; AudioError past ``max_song_seconds``."""
+        seconds = audio_duration_seconds(path)
+        if self.max_song_seconds is not None and seconds > self.max_song_seconds:
+            raise AudioError(
+                f"{path.name} is {seconds:.0f} s long; the limit is max_song_seconds={self.max_song_seconds:g} "
+                "(raise it for longer songs: time and memory grow linearly with length, or set seconds=... "
+                "to dance to the start of the song only)"
+            )
+        return seconds
+
+    def music_features(self, path: Path, seconds: float | None = None) -> tuple[torch.Tensor | None, int]:
+        """Music features (T, Da) at 30 FPS of the whole song (or its first ``seconds``), and T."""
+        duration = self.check_duration(path)
+        limit = None if seconds is None else int(round(seconds * self.fps))
+        if self.audio_encoder is None:
+            n = int(duration * self.fps)
+            n = n if limit is None else min(n, limit)
+            if n < 1:
+                raise AudioError(f"{path.name} is shorter than one motion frame ({1 / self.fps:.3f} s)")
+            return None, n
+        feats = self.cache.features_for_file(self.audio_encoder, path, music_id=path.stem)
+        if limit is not None:
+            feats = feats[:limit]
+        if len(feats) < 1:
+            raise AudioError(f"{path.name} is shorter than one motion frame ({1 / self.fps:.3f} s)")
+        return torch.from_numpy(np.ascontiguousarray(feats)), len(feats)
+
+    @property
+    def style_dim(self) -> int:
+        return int(self.model.style_dim)
+
+    def embedder(self) -> Any:
+        """The StyleEmbedder of the checkpoint's run (its text encoder loads only for free text)."""
+        if self._embedder is None:
+            style_cfg = dict(self.config.get("style") or {})
+            if not style_cfg.get("_target_"):
+                raise ConfigError("the checkpoint's config has no style section; it cannot embed style text")
+            from hydra.utils import instantiate
+
+            style_cfg["cache_dir"] = str(self.cache_dir)
+            self._embedder = instantiate(style_cfg, _recursive_=False)
+        return self._embedder
+
+    def embed_style(self, text: str) -> torch.Tensor:
+        """Style vector (ds,) of a genre (code or name, from the checkpoint's bank) or free text."""
+        embedder = self.embedder()
+        bank = self.model.style_bank
+        if bank is not None and text in embedder.vocab:
+            return bank.mean_for(torch.tensor([embedder.vocab.index(text)], device=bank.vectors.device))[
+                0
+            ].cpu()
+        return embedder.embed_text(text).float().cpu()
+
+    def resolve_style(self, style: str | None) -> StylePlan:
+        """Check and embed a style string once (before any song): genre, free text or schedule."""
+        text = None if style is None else str(style).strip()
+        if not text or text.lower() in ("none", "null"):
+            if self.style_dim:
+                vocab = self.embedder().vocab
+                raise ConfigError(
+                    "this model is conditioned on style: give style=<genre, description or schedule>; "
+                    f"genres: {vocab.describe()}"
+                )
+            return StylePlan(None)
+        if not self.style_dim:
+            raise ConfigError(
+                f"this model was trained without style conditioning (style=none); drop style={text!r}"
+            )
+        if is_schedule(text):
+            spans = parse_schedule(text)
+            for span in spans:
+                self.embed_style(span.style)  # fail early on an unknown genre
+            return StylePlan(text, spans=spans)
+        return StylePlan(text, vector=self.embed_style(text))
+
+    def style_frames(self, plan: StylePlan, n_frames: int, blend_seconds: float) -> torch.Tensor | None:
+        """(ds,) for one style, (n_frames, ds) for a schedule, None without style."""
+        if plan.spans is not None:
+            return schedule_styles(
+                plan.spans, n_frames, self.embed_style, fps=self.fps, blend_seconds=blend_seconds
+            )
+        return plan.vector
+
+    # --- editing --------------------------------------------------------------------------------------------
+    def edit_inputs(
+        self, edit: EditSettings, n_frames: int, generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        """(mask, known), both (n_frames, 151), or (None, None) without a task."""
+        task = check_task(edit.task)
+        if task == "none":
+            return None, None
+        if edit.motion is None:
+            raise ConfigError(
+                f"task={task} needs the given motion: set seed_motion_file (seed_motion, inbetween), "
+                "keyframes_file (keyframes) or motion_file (any task)"
+            )
+        mask = build_mask(
+            task,
+            n_frames,
+            seed_frames=edit.seed_frames,
+            end_frames=edit.end_frames,
+            inpaint_fraction=edit.inpaint_fraction,
+            joints=edit.joints,
+            with_root=edit.with_root,
+            keyframes=edit.keyframes,
+            keyframe_seconds=edit.keyframe_seconds,
+            fps=self.fps,
+            generator=generator,
+        )
+        known = place_known(task, edit.motion, mask, seed_frames=edit.seed_frames, end_frames=edit.end_frames)
+        return mask, known
+
+    # --- sampling -------------------------------------------------------------------------------------------
+    def generate(
+        self,
+        n_frames: int,
+        *,
+        music: torch.Tensor | None = None,
+        style: torch.Tensor | None = None,
+        mask: torch.Tensor | None = None,
+        known: torch.Tensor | None = None,
+        num_samples: int = 1,
+        sampling: SamplingSettings | None = None,
+        seed: int | None = 0,
+        progress: bool = False,
+    ) -> torch.Tensor:
+        """Unnormalised motions (num_samples, n_frames, 151); music (n_frames, Da), style (ds,)/(n_frames, ds)."""
+        sampling = sampling or SamplingSettings()
+        window = min(sampling.window_frames, self.model.denoiser.seq_len)
+        stride = min(sampling.stride_frames, window)
+        guidance = sampling.guidance
+        if n_frames > window:
+            guidance = Guidance(
+                guidance.music_weight,
+                guidance.style_weight,
+                ramp_fraction=sampling.longform_ramp_fraction,
+                edit_cap_below_t=guidance.edit_cap_below_t,
+            )
+        generator = None
+        if seed is not None:
+            generator = torch.Generator(device=self.device).manual_seed(int(seed))
+        autocast = (
+            torch.autocast(self.device.type, dtype=torch.bfloat16)
+            if sampling.bf16
+            else contextlib.nullcontext()
+        )
+        with autocast:
+            motion = sample_long(
+                self.model.sampler(),
+                self.model.normalizer,
+                n_frames,
+                music=music,
+                style=style,
+                num_samples=num_samples,
+                window=window,
+                stride=stride,
+                mask=mask,
+                known=known,
+                method=sampling.method,
+                steps=sampling.steps,
+                eta=sampling.eta,
+                guidance=guidance,
+                chunk_size=sampling.chunk_size,
+                generator=generator,
+                device=self.device,
+                progress=progress,
+            )
+        return motion.float().cpu()
+
+
+def resolve_device(device: str) -> str:
+    """``auto`` -> ``cuda`` when available, else ``cpu``."""
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    return str(device)
+
+
+def write_motion(
+    motion: torch.Tensor,
+    base: Path,
+    *,
+    fps: float,
+    audio_path: Path | None = None,
+    formats: Sequence[str] = ("pkl", "bvh", "video", "npy"),
+    title: str | None = None,
+) -> list[Path]:
+    """Write one motion (T, 151), unnormalised, as ``base`` + .pkl (AIST++), .bvh, .mp4/.gif and .npy."""
+    from dgsdp.export import render_video, save_aistpp_pkl, save_bvh
+
+    if motion.ndim != 2 or motion.shape[-1] != POSE_DIM:
+        raise ValueError(f"write_motion needs one motion (T, {POSE_DIM}), got {tuple(motion.shape)}")
+    base.parent.mkdir(parents=True, exist_ok=True)
+    parts = unpack_pose(motion.double())
+    written: list[Path] = []
+    if "npy" in formats:
+        path = base.with_suffix(".npy")
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.save(f, motion.numpy().astype(np.float32))
+        written.append(path)
+    if "pkl" in formats:
+        written.append(save_aistpp_pkl(base.with_suffix(".pkl"), parts.rotmats, parts.root_trans, fps))
+    if "bvh" in formats:
+        written.append(save_bvh(base.with_suffix(".bvh"), parts.rotmats, parts.root_trans, fps))
+    if "video" in formats:
+        joints = pose_to_joints(motion.double()).float()
+        written.append(render_video(base.with_suffix(".mp4"), joints, fps, audio_path, title=title))
+    return written
