@@ -26,7 +26,7 @@ def audio_encoder_from_config(cfg: DictConfig) -> AudioEncoder | None:
 
 
 def build_hparams(
-    cfg: DictConfig, audio_encoder: AudioEncoder | None, style_embedder: Any, bank: Any
+    cfg: DictConfig, audio_encoder: AudioEncoder | None, style_embedder: Any, style_bank_size: int
 ) -> dict[str, Any]:
     """The model's plain-dict hyper-parameters (stored in checkpoints) from a run config."""
     model = OmegaConf.to_container(cfg.model, resolve=True)
@@ -43,8 +43,8 @@ def build_hparams(
         "audio_settings": None if audio_encoder is None else audio_encoder.settings(),
         "style_kind": "none" if style_embedder is None else style_embedder.kind,
         "style_dim": 0 if style_embedder is None else int(style_embedder.dim),
-        "style_bank_size": 0 if bank is None else int(len(bank)),
-        "n_genres": 0 if bank is None else int(bank.n_genres),
+        "style_bank_size": int(style_bank_size) if style_embedder is not None and style_embedder.dim else 0,
+        "n_genres": 0 if style_embedder is None else len(style_embedder.vocab),
         "text_encoder": OmegaConf.to_container(cfg.text_encoder, resolve=True)
         if cfg.get("text_encoder")
         else None,

@@ -53,7 +53,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     datamodule.setup("fit")
     bank = style_embedder.bank() if style_embedder is not None and style_embedder.dim else None
 
-    hparams = build_hparams(cfg, audio_encoder, style_embedder, bank)
+    hparams = build_hparams(cfg, audio_encoder, style_embedder, 0 if bank is None else len(bank))
     hparams["groups"] = group_choices()
     model = DanceDiffusion(hparams)
     model.normalizer.load_state_dict(datamodule.normalizer.state_dict())

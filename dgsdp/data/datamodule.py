@@ -9,6 +9,7 @@ does no processing and a changed setting never reuses stale data.
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,7 +17,7 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, Sampler
 from tqdm.auto import tqdm
 
 from dgsdp.audio import AudioEncoder, FeatureCache, load_audio
@@ -148,6 +149,26 @@ class WindowDataset(Dataset):
         return item
 
 
+class EpochShuffleSampler(Sampler[int]):
+    """A shuffle whose order depends only on (seed, epoch), so a resumed run sees the same batches as an
+    uninterrupted one (Lightning calls ``set_epoch`` at the start of every epoch)."""
+
+    def __init__(self, length: int, seed: int) -> None:
+        self.length = length
+        self.seed = seed
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return self.length
+
+    def __iter__(self) -> Iterator[int]:
+        g = torch.Generator().manual_seed(self.seed * 100_003 + self.epoch)
+        return iter(torch.randperm(self.length, generator=g).tolist())
+
+
 class DanceDataModule(L.LightningDataModule):
     """Windows of AIST++-layout data for training (stride 0.5 s) and validation/testing (stride 2.5 s).
 
@@ -176,8 +197,10 @@ class DanceDataModule(L.LightningDataModule):
         synthetic: dict[str, Any] | None = None,
         vocab: GenreVocab = AISTPP_GENRES,
         progress: bool = True,
+        shuffle_seed: int = 0,
     ) -> None:
         super().__init__()
+        self.shuffle_seed = shuffle_seed
         self.root = Path(root).expanduser()
         self.cache_dir = Path(cache_dir).expanduser()
         self.audio_encoder = audio_encoder
@@ -267,11 +290,12 @@ class DanceDataModule(L.LightningDataModule):
             self.datasets[name] = ds
 
     def _loader(self, name: str, shuffle: bool) -> DataLoader:
+        dataset = self.datasets[name]
         return DataLoader(
-            self.datasets[name],
+            dataset,
             batch_size=self.batch_size,
-            shuffle=shuffle,
-            drop_last=shuffle and len(self.datasets[name]) > self.batch_size,
+            sampler=EpochShuffleSampler(len(dataset), self.shuffle_seed) if shuffle else None,
+            drop_last=shuffle and len(dataset) > self.batch_size,
             num_workers=self.num_workers,
             persistent_workers=self.num_workers > 0,
         )

@@ -123,6 +123,12 @@ class DanceDiffusion(L.LightningModule):
         self.log("loss", terms["loss"], prog_bar=True, logger=False, batch_size=batch["motion"].shape[0])
         return terms["loss"]
 
+    def on_train_batch_start(self, batch: Any, batch_idx: int) -> None:
+        # The randomness of a step (timesteps, noise, condition dropout, dropout) depends only on (seed, step),
+        # so a run resumed from a checkpoint continues exactly as an uninterrupted one would.
+        seed = int(self.hparams.get("config", {}).get("seed", 0) or 0)
+        torch.manual_seed(seed * 1_000_003 + self.global_step)
+
     def on_train_batch_end(self, outputs: Any, batch: Any, batch_idx: int) -> None:
         self.ema.update_parameters(self.denoiser)
 
