@@ -82,14 +82,14 @@ MUSIC_STYLES: dict[str, MusicStyle] = {
     ),
     # House: four on the floor, open hat on the off-beats, chord stabs, pad.
     "HO": MusicStyle(
-        hits=_on_beats("kick", 1.0) + _on_beats("clap", 0.6, (1, 3)) + _on_beats("openhat", 0.18, EIGHTHS_OFF)
+        hits=_on_beats("kick", 1.0) + _on_beats("clap", 0.6, (1, 3)) + _on_beats("openhat", 0.12, EIGHTHS_OFF)
         + _on_beats("tone", 0.4),
         kick_hz=50, kick_decay_s=0.2, hat_decay_s=0.08, tone_wave="square", tone_decay_s=0.1, root_hz=110,
         pad_gain=0.08,
     ),
     # Waack: disco, four on the floor, off-beat hats, octave bass, strings.
     "WA": MusicStyle(
-        hits=_on_beats("kick", 1.0) + _on_beats("snare", 0.6, (1, 3)) + _on_beats("openhat", 0.15, EIGHTHS_OFF)
+        hits=_on_beats("kick", 1.0) + _on_beats("snare", 0.6, (1, 3)) + _on_beats("openhat", 0.1, EIGHTHS_OFF)
         + _on_beats("bass", 0.6) + _on_beats("bass", 0.12, EIGHTHS_OFF),
         kick_hz=58, kick_decay_s=0.2, tone_wave="saw", root_hz=82, pad_gain=0.1,
     ),
@@ -102,12 +102,12 @@ MUSIC_STYLES: dict[str, MusicStyle] = {
     # Street jazz: swing, ride on the beats plus quiet swung eighths, walking bass.
     "JS": MusicStyle(
         hits=_on_beats("kick", 0.8, (0, 2)) + _on_beats("snare", 0.8, (1, 3)) + _on_beats("ride", 0.6)
-        + _on_beats("ride", 0.15, SWING_OFF) + _on_beats("bass", 0.6),
+        + _on_beats("ride", 0.1, SWING_OFF) + _on_beats("bass", 0.6),
         kick_hz=62, snare_decay_s=0.1, hat_decay_s=0.15, tone_wave="triangle", root_hz=87,
     ),
     # Ballet jazz: piano chords on the beats over strings, soft kick, swung ride.
     "JB": MusicStyle(
-        hits=_on_beats("piano", 1.0) + _on_beats("kick", 0.6) + _on_beats("ride", 0.12, SWING_OFF),
+        hits=_on_beats("piano", 1.0) + _on_beats("kick", 0.6) + _on_beats("ride", 0.06, SWING_OFF),
         kick_hz=70, kick_decay_s=0.15, tone_wave="triangle", tone_decay_s=0.5, root_hz=196, pad_gain=0.12,
     ),
 }  # fmt: skip
@@ -232,13 +232,16 @@ def synthesize_music(
     period_s = beat_period_s(bpm)
     beat_times = np.arange(first_beat_s, seconds, period_s)
     sounds = _instrument_sounds(style, sr, rng)
+    # Every beat also gets a short broadband click, so that the beats, not quieter off-beat cymbals, carry the
+    # strongest onsets in every frequency band.
+    hits = style.hits + _on_beats("hat", 0.5)
     out = np.zeros(
         total + max(len(s) for s in sounds.values()), dtype=np.float64
     )  # tail room for the last hits
 
     # Bars start one beat-pattern before the first beat so that pickup events fill the start.
     bar_starts = np.arange(first_beat_s - 4 * period_s, seconds, 4 * period_s)
-    for hit in style.hits:
+    for hit in hits:
         sound = sounds[hit.instrument]
         for bar_start in bar_starts:
             start = int(round((bar_start + hit.beat * period_s) * sr))
@@ -257,7 +260,7 @@ def synthesize_music(
     pad_phase = np.cumsum(root) / sr
     pad = sum(np.sin(2 * np.pi * k * pad_phase) for k in (1.0, 1.5, 2.0)) / 3
     out[:total] += style.pad_gain * pad * (1 - np.exp(-t / 0.5))
-    out[:total] += 0.01 * _bandpass_noise(total, 100, 8000, sr, rng)
+    out[:total] += 0.015 * _bandpass_noise(total, 100, 16000, sr, rng)
 
     audio = out[:total]
     audio = audio / (np.abs(audio).max() + 1e-12) * 0.9
