@@ -119,7 +119,7 @@ class DanceGenerator:
         self.cache = FeatureCache(cache_dir)
         self.cache_dir = Path(cache_dir)
         self.max_song_seconds = max_song_seconds
-        self.audio_encoder = self._audio_encoder()
+        self._audio: AudioEncoder | None = None
         self._embedder: Any = None
 
     @classmethod
@@ -139,7 +139,14 @@ class DanceGenerator:
         )
 
     # --- conditioning ---------------------------------------------------------------------------------------
-    def _audio_encoder(self) -> AudioEncoder | None:
+    @property
+    def audio_encoder(self) -> AudioEncoder | None:
+        """The checkpoint's audio encoder (built on first use), or None for a model without music."""
+        if self._audio is None:
+            self._audio = self._build_audio_encoder()
+        return self._audio
+
+    def _build_audio_encoder(self) -> AudioEncoder | None:
         audio_dim = int(self.model.hparams["conditioning"].get("audio_dim", 0))
         audio_cfg = self.config.get("audio")
         if not audio_dim:

@@ -1,0 +1,120 @@
+"""Long-form generation: window layout, overlap sharing, stitching against closed forms, editing in long-form."""
+
+import math
+
+import pytest
+import torch
+
+from dgsdp.editing import build_mask
+from dgsdp.generation import WindowLayout, sample_long, share_overlaps, stitch_windows
+from dgsdp.motion import matrix_to_6d, pack_pose
+from dgsdp.sampling import Guidance
+
+from gen_helpers import AUDIO_DIM, random_motion
+
+
+@pytest.mark.parametrize(
+    ("n_frames", "windows", "padded"),
+    [(1, 1, 150), (149, 1, 150), (150, 1, 150), (151, 2, 225), (2850, 37, 2850), (2851, 38, 2925)],
+)
+def test_window_layout(n_frames, windows, padded):
+    layout = WindowLayout(n_frames, 150, 75)
+    assert (layout.n_windows, layout.padded_frames) == (windows, padded)
+    # 150 + 75 (b - 1) >= n_frames > 150 + 75 (b - 2)
+    assert layout.padded_frames >= n_frames and (windows == 1 or layout.padded_frames - 75 < n_frames)
+
+
+def test_share_overlaps_copies_second_half_into_next_first_half():
+    x = torch.arange(2 * 3 * 4, dtype=torch.float32).reshape(6, 4, 1)  # 2 samples x 3 windows of 4 frames
+    y = share_overlaps(x, n_windows=3, stride=2)
+    for s in range(2):
+        w = x[3 * s : 3 * s + 3]
+        v = y[3 * s : 3 * s + 3]
+        assert torch.equal(v[0], w[0])
+        assert torch.equal(v[1, :2], w[0, 2:]) and torch.equal(v[1, 2:], w[1, 2:])
+        assert torch.equal(v[2, :2], w[1, 2:]) and torch.equal(v[2, 2:], w[2, 2:])
+
+
+def rot_z(angle: torch.Tensor) -> torch.Tensor:
+    c, s = torch.cos(angle), torch.sin(angle)
+    zero, one = torch.zeros_like(angle), torch.ones_like(angle)
+    return torch.stack([c, -s, zero, s, c, zero, zero, zero, one], -1).reshape(*angle.shape, 3, 3)
+
+
+def test_stitch_against_closed_forms():
+    length, stride = 8, 4
+    overlap = length - stride
+    # window 0: every joint at 0.2 rad about z, root at (0, 0, 0), contacts 1; window 1: 1.0 rad, root (4, 0, 2)
+    a = pack_pose(torch.ones(length, 4), torch.zeros(length, 3), rot_z(torch.full((length, 24), 0.2)))
+    b = pack_pose(torch.zeros(length, 4), torch.tensor([4.0, 0, 2]).expand(length, 3),
+                  rot_z(torch.full((length, 24), 1.0)))  # fmt: skip
+    out = stitch_windows(torch.stack([a, b]), stride)
+    assert out.shape == (length + stride, 151)
+    w = torch.arange(overlap) / (overlap - 1)  # 0, 1/3, 2/3, 1
+    ov = out[stride:length]
+    torch.testing.assert_close(ov[:, 4], 4 * w)
+    torch.testing.assert_close(ov[:, 6], 2 * w)
+    # slerp between rotations about one axis: the angle moves linearly
+    expected = matrix_to_6d(rot_z(0.2 + 0.8 * w)[:, None].expand(overlap, 24, 3, 3)).reshape(overlap, 144)
+    torch.testing.assert_close(ov[:, 7:], expected, atol=1e-6, rtol=0)
+    assert ov[:, 0].tolist() == [1, 1, 0, 0]  # contacts from the window with the larger weight
+    assert torch.equal(out[:stride], a[:stride]) and torch.equal(out[length:], b[overlap:])
+
+
+def test_longform_lengths_and_window_consistency(tiny_model):
+    style = torch.eye(10)[3]
+    for n in (40, 150, 151, 2850 + 7):  # short, one window, two windows, a 95 s song and a bit
+        out = sample_long(tiny_model.sampler(), tiny_model.normalizer, n, music=torch.randn(n, AUDIO_DIM),
+                          style=style, steps=2, generator=torch.Generator().manual_seed(0))  # fmt: skip
+        assert out.shape == (1, n, 151) and torch.isfinite(out).all()
+
+
+def test_per_frame_style_and_samples(tiny_model):
+    n = 300
+    style = torch.eye(10)[torch.arange(n) * 10 // n]  # (T, 10): a genre per 30 frames
+    out = sample_long(tiny_model.sampler(), tiny_model.normalizer, n, music=torch.randn(n, AUDIO_DIM),
+                      style=style, num_samples=2, steps=2, guidance=Guidance(2.0, 1.0, ramp_fraction=0.5),
+                      chunk_size=3, generator=torch.Generator().manual_seed(0))  # fmt: skip
+    assert out.shape == (2, n, 151)
+    assert (out[0] - out[1]).abs().max() > 1e-3
+
+
+TASK_OPTIONS = {
+    "seed_motion": {"seed_frames": 30},
+    "inbetween": {"seed_frames": 20, "end_frames": 20},
+    "inpaint": {"inpaint_fraction": 0.7},
+    "upper_body": {},
+    "lower_body": {},
+    "joints": {"joints": ["left_wrist", "right_elbow", "head"]},
+    "keyframes": {"keyframe_seconds": [0.5, 3.0], "keyframes": [-1]},
+}
+
+
+@pytest.mark.parametrize("task", sorted(TASK_OPTIONS))
+@pytest.mark.parametrize("n_frames", [100, 240])  # one cropped window; long-form over 3 windows
+def test_masked_regions_are_kept_and_the_rest_is_sampled(tiny_model, task, n_frames):
+    known = random_motion(400, seed=0)[:n_frames]  # inside the range the normaliser was fitted on
+    mask = build_mask(task, n_frames, generator=torch.Generator().manual_seed(1), **TASK_OPTIONS[task])
+    music = torch.randn(n_frames, AUDIO_DIM)
+    outs = [
+        sample_long(tiny_model.sampler(), tiny_model.normalizer, n_frames, music=music, style=torch.eye(10)[0],
+                    mask=mask, known=known, steps=3, guidance=Guidance(2.0, 1.0, edit_cap_below_t=100),
+                    generator=torch.Generator().manual_seed(seed))[0]  # fmt: skip
+        for seed in (0, 1)
+    ]
+    given = mask.bool()
+    # normalisation round-off: normalise/unnormalise maps [min, max] to [-1, 1] and back in float32
+    scale = (tiny_model.normalizer.data_max - tiny_model.normalizer.data_min).abs().max().item()
+    for out in outs:
+        assert out.shape == (n_frames, 151)
+        torch.testing.assert_close(out[given], known[given], atol=1e-6 * max(scale, 1), rtol=1e-5)
+    diff = (outs[0] - outs[1]).abs()[~given]
+    assert diff.numel() > 0 and diff.max() > 1e-2
+    assert not math.isclose(float(diff.mean()), 0.0)
+
+
+def test_stitch_keeps_values_the_windows_agree_on():
+    # windows cut from one valid motion agree on their overlaps: stitching must give that motion back
+    motion = random_motion(300, seed=3)
+    windows = torch.stack([motion[s : s + 150] for s in (0, 75, 150)])
+    torch.testing.assert_close(stitch_windows(windows, 75), motion, atol=2e-6, rtol=0)
