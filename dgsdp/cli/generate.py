@@ -14,6 +14,8 @@ from pathlib import Path
 from typing import Any
 
 import hydra
+from hydra import compose, initialize
+from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
@@ -24,6 +26,26 @@ from dgsdp.generation.pipeline import DanceGenerator, EditSettings, SamplingSett
 from dgsdp.sampling import Guidance
 
 log = logging.getLogger(__name__)
+CONFIG_NAME = "generate"
+# Config groups of conf/ that generate.yaml uses. The other groups (style, audio, model, ...) belong to training:
+# left out of generate's search path, so that ``style=krump`` is a plain value here, not a group choice.
+GENERATE_GROUPS = ("paths", "hydra")
+
+
+def register_configs() -> None:
+    """Put conf/generate.yaml and the groups it uses in Hydra's config store (generate's only search path)."""
+    store = ConfigStore.instance()
+    store.store(name=CONFIG_NAME, node=OmegaConf.load(CONFIG_DIR / f"{CONFIG_NAME}.yaml"))
+    for group in GENERATE_GROUPS:
+        for path in sorted((CONFIG_DIR / group).glob("*.yaml")):
+            store.store(group=group, name=path.stem, node=OmegaConf.load(path))
+
+
+def compose_config(overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:
+    """The generate config with command-line style overrides, for scripts and tests (no Hydra run dir)."""
+    register_configs()
+    with initialize(version_base="1.3", config_path=None):
+        return compose(CONFIG_NAME, overrides=list(overrides))
 
 
 @dataclass
@@ -162,7 +184,10 @@ def print_report(report: GenerationReport) -> None:
             print(f"  {song}: {message}")
 
 
-@hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="generate")
+register_configs()
+
+
+@hydra.main(version_base="1.3", config_path=None, config_name=CONFIG_NAME)
 def main(cfg: DictConfig) -> None:
     try:
         report = generate(cfg)

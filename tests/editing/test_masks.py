@@ -76,7 +76,15 @@ def test_mask_errors():
         build_mask("joints", 10, joints=["tail"])
     with pytest.raises(ConfigError, match="inpaint_fraction"):
         build_mask("inpaint", 10, inpaint_fraction=1.5)
-    assert set(TASKS) >= {"seed_motion", "inbetween", "inpaint", "upper_body", "lower_body", "joints", "keyframes"}
+    assert set(TASKS) >= {
+        "seed_motion",
+        "inbetween",
+        "inpaint",
+        "upper_body",
+        "lower_body",
+        "joints",
+        "keyframes",
+    }
 
 
 def test_place_known_layouts():

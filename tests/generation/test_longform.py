@@ -4,13 +4,12 @@ import math
 
 import pytest
 import torch
+from gen_helpers import AUDIO_DIM, random_motion
 
 from dgsdp.editing import build_mask
 from dgsdp.generation import WindowLayout, sample_long, share_overlaps, stitch_windows
 from dgsdp.motion import matrix_to_6d, pack_pose
 from dgsdp.sampling import Guidance
-
-from gen_helpers import AUDIO_DIM, random_motion
 
 
 @pytest.mark.parametrize(
@@ -97,9 +96,18 @@ def test_masked_regions_are_kept_and_the_rest_is_sampled(tiny_model, task, n_fra
     mask = build_mask(task, n_frames, generator=torch.Generator().manual_seed(1), **TASK_OPTIONS[task])
     music = torch.randn(n_frames, AUDIO_DIM)
     outs = [
-        sample_long(tiny_model.sampler(), tiny_model.normalizer, n_frames, music=music, style=torch.eye(10)[0],
-                    mask=mask, known=known, steps=3, guidance=Guidance(2.0, 1.0, edit_cap_below_t=100),
-                    generator=torch.Generator().manual_seed(seed))[0]  # fmt: skip
+        sample_long(
+            tiny_model.sampler(),
+            tiny_model.normalizer,
+            n_frames,
+            music=music,
+            style=torch.eye(10)[0],
+            mask=mask,
+            known=known,
+            steps=3,
+            guidance=Guidance(2.0, 1.0, edit_cap_below_t=100),
+            generator=torch.Generator().manual_seed(seed),
+        )[0]  # fmt: skip
         for seed in (0, 1)
     ]
     given = mask.bool()

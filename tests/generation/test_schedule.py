@@ -5,7 +5,14 @@ import torch
 from gen_helpers import STYLE_DIM
 
 from dgsdp.errors import ConfigError
-from dgsdp.generation import DanceGenerator, StyleSpan, is_schedule, parse_schedule, schedule_styles, span_weights
+from dgsdp.generation import (
+    DanceGenerator,
+    StyleSpan,
+    is_schedule,
+    parse_schedule,
+    schedule_styles,
+    span_weights,
+)
 
 
 def test_parse_quoted_unquoted_and_open_end():
@@ -15,7 +22,10 @@ def test_parse_quoted_unquoted_and_open_end():
         StyleSpan(30, 60, "slow graceful ballet jazz"),
         StyleSpan(60, float("inf"), "house; with a twist"),
     ]
-    assert parse_schedule("10.5s-20s: 'pop';  0-10.5: BR;") == [StyleSpan(0, 10.5, "BR"), StyleSpan(10.5, 20, "pop")]
+    assert parse_schedule("10.5s-20s: 'pop';  0-10.5: BR;") == [
+        StyleSpan(0, 10.5, "BR"),
+        StyleSpan(10.5, 20, "pop"),
+    ]
     assert is_schedule("0-30: krump") and not is_schedule("krump") and not is_schedule("LA-style Hip-hop")
 
 

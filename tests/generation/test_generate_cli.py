@@ -1,0 +1,113 @@
+"""generate.py end to end on a tiny checkpoint trained here: files written, bad inputs reported clearly."""
+
+import os
+import pickle
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import soundfile as sf
+from gen_helpers import train_tiny_checkpoint, write_click_song
+
+from dgsdp.cli.config import PROJECT_ROOT
+from dgsdp.cli.generate import compose_config, generate
+from dgsdp.editing import load_motion_file
+from dgsdp.errors import ConfigError, DataError
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory) -> str:
+    return train_tiny_checkpoint(tmp_path_factory.mktemp("tiny"))
+
+
+@pytest.fixture(scope="module")
+def songs(tmp_path_factory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("songs")
+    paths = {"good": d / "good.wav", "one_second": d / "one_second.flac", "broken": d / "broken.wav",
+             "long": d / "twenty_minutes.wav", "missing": d / "missing.mp3"}  # fmt: skip
+    write_click_song(paths["good"], 3.0)
+    write_click_song(paths["one_second"], 1.0)
+    paths["broken"].write_bytes(b"RIFF this is not audio at all" * 50)
+    sf.write(paths["long"], np.zeros(1200 * 1000, dtype=np.int16), 1000, subtype="PCM_16")
+    return paths
+
+
+def gen_config(tmp: Path, checkpoint: str, music, *overrides: str):
+    def value(v) -> str:
+        return "[" + ",".join(str(x) for x in v) + "]" if isinstance(v, list) else str(v)
+
+    return compose_config(
+            [
+                f"checkpoint={checkpoint}", f"music={value(music)}", "style=krump", "steps=2", "progress=false",
+                f"output_dir={tmp / 'out'}", f"paths.output_dir={tmp / 'out'}", f"paths.cache_dir={tmp / 'cache'}",
+                "device=cpu", *overrides,
+            ]
+        )  # fmt: skip
+
+
+def test_generate_writes_every_format_and_reports_bad_songs(tmp_path, checkpoint, songs):
+    music = [songs[k] for k in ("good", "broken", "long", "one_second", "missing")]
+    report = generate(gen_config(tmp_path, checkpoint, music, "max_song_seconds=600", "num_samples=2"))
+    out = tmp_path / "out"
+    for stem, seconds in (("good", 3.0), ("one_second", 1.0)):
+        for k in range(2):
+            names = {p.name for p in report.written[str(songs[stem if stem == "good" else "one_second"])]}
+            base = f"{stem}_sample{k}"
+            assert {f"{base}.pkl", f"{base}.bvh", f"{base}.npy"} <= names
+            assert f"{base}.mp4" in names or f"{base}.gif" in names
+            motion = np.load(out / f"{base}.npy")
+            assert motion.shape == (int(seconds * 30), 151)
+            with open(out / f"{base}.pkl", "rb") as f:
+                data = pickle.load(f)
+            assert data["smpl_poses"].shape == (int(seconds * 30), 72) and data["fps"] == 30
+            assert load_motion_file(out / f"{base}.pkl").shape == (int(seconds * 30), 151)
+            assert (out / f"{base}.bvh").read_text().startswith("HIERARCHY")
+    errors = report.errors
+    assert set(errors) == {str(songs[k]) for k in ("broken", "long", "missing")}
+    assert "Cannot decode audio file" in errors[str(songs["broken"])]
+    assert "1200 s long; the limit is max_song_seconds=600" in errors[str(songs["long"])]
+    assert "not found" in errors[str(songs["missing"])]
+    assert not report.ok
+
+
+def test_editing_from_files_and_run_wide_errors(tmp_path, checkpoint, songs):
+    # keyframes from a file, at given seconds: the written motion holds the keyframes' rotations and root
+    key = np.load(_first_motion(tmp_path, checkpoint, songs))
+    np.save(tmp_path / "keys.npy", key[[0, 45]])
+    cfg = gen_config(tmp_path, checkpoint, songs["good"], "task=keyframes",
+                     f"keyframes_file={tmp_path / 'keys.npy'}", "keyframe_seconds=[0,1.5]", "formats=[npy]")  # fmt: skip
+    report = generate(cfg)
+    assert report.ok
+    motion = np.load(tmp_path / "out" / "good.npy")
+    np.testing.assert_allclose(motion[[0, 45], 4:], key[[0, 45], 4:], atol=1e-5)
+    np.save(tmp_path / "wrong.npy", np.zeros((2, 150), np.float32))
+    bad = gen_config(tmp_path, checkpoint, songs["good"], "task=keyframes", f"keyframes_file={tmp_path / 'wrong.npy'}",
+                     "keyframe_seconds=[0,1.5]")  # fmt: skip
+    with pytest.raises(DataError, match=r"shape \(2, 150\).*\(N, 151\)"):
+        generate(bad)
+    with pytest.raises(ConfigError, match="one-hot.*Known genres"):
+        generate(gen_config(tmp_path, checkpoint, songs["good"], "style=slow graceful moonwalk"))
+    with pytest.raises(ConfigError, match="does not exist"):
+        generate(gen_config(tmp_path, str(tmp_path / "nope.ckpt"), songs["good"]))
+    with pytest.raises(ConfigError, match="unknown editing task"):
+        generate(gen_config(tmp_path, checkpoint, songs["good"], "task=dance_off"))
+
+
+def _first_motion(tmp_path, checkpoint, songs) -> Path:
+    report = generate(gen_config(tmp_path / "first", checkpoint, songs["good"], "formats=[npy]"))
+    return report.written[str(songs["good"])][0]
+
+
+def test_command_line_exit_codes_and_messages(tmp_path, checkpoint, songs):
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "offline", "PYTHONPATH": str(PROJECT_ROOT)}
+    cmd = [sys.executable, str(PROJECT_ROOT / "generate.py"), f"checkpoint={checkpoint}",
+           f"music=[{songs['good']},{songs['broken']}]", "style=BR", "steps=2", "formats=[npy,pkl]",
+           f"output_dir={tmp_path / 'out'}", f"paths.cache_dir={tmp_path / 'cache'}", f"hydra.run.dir={tmp_path}"]  # fmt: skip
+    run = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    assert run.returncode == 1, run.stderr
+    assert "Traceback" not in run.stderr + run.stdout
+    assert "1 song(s) failed" in run.stdout and "Cannot decode audio file" in run.stdout
+    assert (tmp_path / "out" / "good.pkl").is_file() and (tmp_path / "out" / "good.npy").is_file()
+    assert str(tmp_path / "out" / "good.pkl") in run.stdout  # where the files are
