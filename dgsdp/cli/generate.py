@@ -26,19 +26,23 @@ from dgsdp.generation.pipeline import DanceGenerator, EditSettings, SamplingSett
 from dgsdp.sampling import Guidance
 
 log = logging.getLogger(__name__)
-CONFIG_NAME = "generate"
-# Config groups of conf/ that generate.yaml uses. The other groups (style, audio, model, ...) belong to training:
-# left out of generate's search path, so that ``style=krump`` is a plain value here, not a group choice.
-GENERATE_GROUPS = ("paths", "hydra")
+CONFIG_FILE = CONFIG_DIR / "generate.yaml"
+# Name in Hydra's config store of conf/generate.yaml with the groups it uses (paths, hydra) merged in. Generate's
+# only search path is that store: the training groups of conf/ (style, audio, model, ...) stay out of it, so that
+# ``style=krump`` is a plain value here, not a group choice.
+CONFIG_NAME = "dgsdp_generate"
 
 
 def register_configs() -> None:
-    """Put conf/generate.yaml and the groups it uses in Hydra's config store (generate's only search path)."""
-    store = ConfigStore.instance()
-    store.store(name=CONFIG_NAME, node=OmegaConf.load(CONFIG_DIR / f"{CONFIG_NAME}.yaml"))
-    for group in GENERATE_GROUPS:
-        for path in sorted((CONFIG_DIR / group).glob("*.yaml")):
-            store.store(group=group, name=path.stem, node=OmegaConf.load(path))
+    """Store conf/generate.yaml, with its defaults (``group: option``) merged in, in Hydra's config store."""
+    node = OmegaConf.load(CONFIG_FILE)
+    defaults = node.pop("defaults", [])
+    for entry in defaults:
+        if isinstance(entry, str):  # _self_
+            continue
+        for group, option in entry.items():
+            node[group] = OmegaConf.load(CONFIG_DIR / group / f"{option}.yaml")
+    ConfigStore.instance().store(name=CONFIG_NAME, node=node)
 
 
 def compose_config(overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:
@@ -98,7 +102,12 @@ def edit_settings(cfg: DictConfig, fps: int) -> EditSettings:
     if task == "keyframes":
         file = cfg.keyframes_file
     file = file or cfg.motion_file
-    motion = load_motion_file(file, fps=fps) if task != "none" and file else None
+    if task != "none" and not file:
+        raise ConfigError(
+            f"task={task} needs the given motion: set seed_motion_file (seed_motion, inbetween), "
+            "keyframes_file (keyframes) or motion_file (any task); .npy (N, 151) or AIST++ .pkl"
+        )
+    motion = load_motion_file(file, fps=fps) if file else None
     return EditSettings(
         task=task,
         motion=motion,

@@ -91,6 +91,8 @@ def test_editing_from_files_and_run_wide_errors(tmp_path, checkpoint, songs):
         generate(gen_config(tmp_path, checkpoint, songs["good"], "style=slow graceful moonwalk"))
     with pytest.raises(ConfigError, match="does not exist"):
         generate(gen_config(tmp_path, str(tmp_path / "nope.ckpt"), songs["good"]))
+    with pytest.raises(ConfigError, match="task=seed_motion needs the given motion"):
+        generate(gen_config(tmp_path, checkpoint, songs["good"], "task=seed_motion"))
     with pytest.raises(ConfigError, match="unknown editing task"):
         generate(gen_config(tmp_path, checkpoint, songs["good"], "task=dance_off"))
 
