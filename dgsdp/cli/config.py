@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from dgsdp.audio import AudioEncoder
 from dgsdp.errors import ConfigError
@@ -16,6 +17,28 @@ CONFIG_DIR = PROJECT_ROOT / "conf"
 
 if not OmegaConf.has_resolver("dgsdp_root"):
     OmegaConf.register_new_resolver("dgsdp_root", lambda: str(PROJECT_ROOT))
+
+
+def compose_config(
+    config_name: str = "train", overrides: Sequence[str] = (), output_dir: str | Path | None = None
+) -> DictConfig:
+    """Compose a config as the entry point would, with Hydra's runtime values set (for notebooks and tests).
+
+    ``output_dir`` stands for the run folder Hydra would create (``paths.output_dir``)."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.hydra_config import HydraConfig
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(str(CONFIG_DIR), version_base="1.3"):
+        cfg = compose(config_name, overrides=list(overrides), return_hydra_config=True)
+    if output_dir is not None:
+        with open_dict(cfg):
+            cfg.hydra.runtime.output_dir = str(output_dir)
+    HydraConfig.instance().set_config(cfg)
+    with open_dict(cfg):
+        del cfg["hydra"]  # as in a Hydra app: the task's config has no hydra node
+    return cfg
 
 
 def audio_encoder_from_config(cfg: DictConfig) -> AudioEncoder | None:
@@ -45,9 +68,7 @@ def build_hparams(
         "style_dim": 0 if style_embedder is None else int(style_embedder.dim),
         "style_bank_size": int(style_bank_size) if style_embedder is not None and style_embedder.dim else 0,
         "n_genres": 0 if style_embedder is None else len(style_embedder.vocab),
-        "text_encoder": OmegaConf.to_container(cfg.text_encoder, resolve=True)
-        if cfg.get("text_encoder")
-        else None,
+        "text_encoder": OmegaConf.to_container(cfg.text_encoder, resolve=True) if cfg.get("text_encoder") else None,
         "music_drop_prob": float(diffusion.pop("music_drop_prob", 0.25)),
         "style_drop_prob": float(diffusion.pop("style_drop_prob", 0.0)),
     }

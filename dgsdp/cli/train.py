@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from dgsdp.cli.config import CONFIG_DIR, audio_encoder_from_config, build_hparams
 from dgsdp.errors import ConfigError, DgsdpError
 from dgsdp.training.module import DanceDiffusion, check_compatible, plain
+from dgsdp.utils.io import atomic_write_text
 
 log = logging.getLogger(__name__)
 GROUP_CHOICES = ("data", "audio", "text_encoder", "style", "style_injection", "model", "diffusion", "loss",
@@ -64,19 +65,20 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     if cfg.get("ckpt_path"):
         ckpt_path = Path(cfg.ckpt_path).expanduser()
         if not ckpt_path.is_file():
-            raise ConfigError(
-                f"ckpt_path {ckpt_path} does not exist; give the path of a checkpoint to resume from"
-            )
+            raise ConfigError(f"ckpt_path {ckpt_path} does not exist; give the path of a checkpoint to resume from")
         saved = torch.load(ckpt_path, map_location="cpu", weights_only=True)
         check_compatible(saved.get("hyper_parameters", {}), plain(hparams), str(ckpt_path))
         _resume_logger_ids(cfg)
 
     callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values() if c and "_target_" in c]
     loggers = [instantiate(lg) for lg in (cfg.get("logger") or {}).values() if lg and "_target_" in lg]
+    record = {"config": hparams["config"], "groups": hparams["groups"], "n_params": n_params}
     for logger in loggers:
-        logger.log_hyperparams(
-            {"config": hparams["config"], "groups": hparams["groups"], "n_params": n_params}
-        )
+        logger.log_hyperparams(record)
+        if type(logger).__name__ == "WandbLogger":
+            # a readable copy in the run's files folder (uploaded with the run; offline runs keep it on disk)
+            run_files = Path(logger.experiment.dir)
+            atomic_write_text(run_files / "dgsdp_config.yaml", OmegaConf.to_yaml(OmegaConf.create(record)))
     trainer: L.Trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
     try:
         trainer.fit(model, datamodule=datamodule, ckpt_path=cfg.get("ckpt_path"))
@@ -85,9 +87,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             experiment = getattr(logger, "_experiment", None)
             if experiment is not None and hasattr(experiment, "finish"):
                 experiment.finish()  # wandb: close this job's run so the next multirun job gets its own
-    metrics = {
-        k: float(v) for k, v in trainer.callback_metrics.items() if torch.is_tensor(v) and v.numel() == 1
-    }
+    metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if torch.is_tensor(v) and v.numel() == 1}
     ckpt_dir = Path(cfg.paths.output_dir) / "checkpoints"
     result = {"metrics": metrics, "checkpoint_dir": str(ckpt_dir), "global_step": trainer.global_step}
     last = ckpt_dir / "last.ckpt"

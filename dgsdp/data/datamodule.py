@@ -87,9 +87,7 @@ def load_sequences(
             )
         elif waveform_sample_rate is not None:
             audio, _ = load_audio(music_path(root, parsed.music_id), waveform_sample_rate)
-        sequences.append(
-            Sequence(name, parsed.genre, vocab.index(parsed.genre), parsed.music_id, motion, audio)
-        )
+        sequences.append(Sequence(name, parsed.genre, vocab.index(parsed.genre), parsed.music_id, motion, audio))
     return sequences
 
 
@@ -111,9 +109,7 @@ class WindowDataset(Dataset):
         self.length = length
         self.fps = fps
         self.waveform_sample_rate = waveform_sample_rate
-        self.index = [
-            (i, s) for i, seq in enumerate(sequences) for s in window_starts(len(seq.motion), length, stride)
-        ]
+        self.index = [(i, s) for i, seq in enumerate(sequences) for s in window_starts(len(seq.motion), length, stride)]
 
     def __len__(self) -> int:
         return len(self.index)
@@ -143,20 +139,20 @@ class WindowDataset(Dataset):
             "start": start,
         }
         if seq.audio is not None:
-            item["audio"] = torch.from_numpy(
-                np.ascontiguousarray(self._audio_window(seq.audio, start))
-            ).float()
+            item["audio"] = torch.from_numpy(np.ascontiguousarray(self._audio_window(seq.audio, start))).float()
         return item
 
 
 class EpochShuffleSampler(Sampler[int]):
     """A shuffle whose order depends only on (seed, epoch), so a resumed run sees the same batches as an
-    uninterrupted one (Lightning calls ``set_epoch`` at the start of every epoch)."""
+    uninterrupted one (Lightning calls ``set_epoch`` at the start of every epoch). ``skip`` drops the first
+    indices of the next pass (a run resumed mid-epoch)."""
 
     def __init__(self, length: int, seed: int) -> None:
         self.length = length
         self.seed = seed
         self.epoch = 0
+        self.skip = 0
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
@@ -166,7 +162,30 @@ class EpochShuffleSampler(Sampler[int]):
 
     def __iter__(self) -> Iterator[int]:
         g = torch.Generator().manual_seed(self.seed * 100_003 + self.epoch)
-        return iter(torch.randperm(self.length, generator=g).tolist())
+        order = torch.randperm(self.length, generator=g).tolist()
+        skip, self.skip = self.skip, 0
+        return iter(order[skip:])
+
+
+class ResumableLoader(DataLoader):
+    """A DataLoader over an :class:`EpochShuffleSampler` that Lightning can checkpoint mid-epoch: its state is the
+    number of batches already served this epoch, which a resumed run skips."""
+
+    def __init__(self, dataset: Dataset, *, batch_size: int, seed: int, **kwargs: Any) -> None:
+        super().__init__(dataset, batch_size=batch_size, sampler=EpochShuffleSampler(len(dataset), seed), **kwargs)
+        self.served = 0
+
+    def __iter__(self) -> Iterator[Any]:
+        self.served = self.sampler.skip // self.batch_size
+        for batch in super().__iter__():
+            self.served += 1
+            yield batch
+
+    def state_dict(self) -> dict[str, int]:
+        return {"served": self.served}
+
+    def load_state_dict(self, state: dict[str, int]) -> None:
+        self.sampler.skip = int(state.get("served", 0)) * self.batch_size
 
 
 class DanceDataModule(L.LightningDataModule):
@@ -291,14 +310,13 @@ class DanceDataModule(L.LightningDataModule):
 
     def _loader(self, name: str, shuffle: bool) -> DataLoader:
         dataset = self.datasets[name]
-        return DataLoader(
-            dataset,
-            batch_size=self.batch_size,
-            sampler=EpochShuffleSampler(len(dataset), self.shuffle_seed) if shuffle else None,
-            drop_last=shuffle and len(dataset) > self.batch_size,
-            num_workers=self.num_workers,
-            persistent_workers=self.num_workers > 0,
-        )
+        kwargs = {"num_workers": self.num_workers, "persistent_workers": self.num_workers > 0}
+        if shuffle:
+            drop_last = len(dataset) > self.batch_size
+            return ResumableLoader(
+                dataset, batch_size=self.batch_size, seed=self.shuffle_seed, drop_last=drop_last, **kwargs
+            )
+        return DataLoader(dataset, batch_size=self.batch_size, shuffle=False, **kwargs)
 
     def train_dataloader(self) -> DataLoader:
         return self._loader("train", shuffle=True)

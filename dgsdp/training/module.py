@@ -117,9 +117,7 @@ class DanceDiffusion(L.LightningModule):
     # --- Lightning hooks ---------------------------------------------------------------------------------
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
         terms = self._loss(self.denoiser, batch, train=True)
-        self.log_dict(
-            {f"train/{k}": v for k, v in terms.items()}, prog_bar=False, batch_size=batch["motion"].shape[0]
-        )
+        self.log_dict({f"train/{k}": v for k, v in terms.items()}, prog_bar=False, batch_size=batch["motion"].shape[0])
         self.log("loss", terms["loss"], prog_bar=True, logger=False, batch_size=batch["motion"].shape[0])
         return terms["loss"]
 
@@ -129,7 +127,9 @@ class DanceDiffusion(L.LightningModule):
         seed = int(self.hparams.get("config", {}).get("seed", 0) or 0)
         torch.manual_seed(seed * 1_000_003 + self.global_step)
 
-    def on_train_batch_end(self, outputs: Any, batch: Any, batch_idx: int) -> None:
+    def optimizer_step(self, *args: Any, **kwargs: Any) -> None:
+        super().optimizer_step(*args, **kwargs)
+        # Right after the weights change, so a checkpoint saved at the end of this batch includes this update.
         self.ema.update_parameters(self.denoiser)
 
     def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:
@@ -204,9 +204,7 @@ def load_checkpoint(path: str, map_location: str | torch.device = "cpu") -> Danc
 
     p = Path(path).expanduser()
     if not p.is_file():
-        raise ConfigError(
-            f"checkpoint {p} does not exist; train one with 'python train.py' or check the path"
-        )
+        raise ConfigError(f"checkpoint {p} does not exist; train one with 'python train.py' or check the path")
     try:
         ckpt = torch.load(p, map_location=map_location, weights_only=True)
     except Exception as e:  # noqa: BLE001 - any failure here means the file is not a usable checkpoint
