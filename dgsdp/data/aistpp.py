@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dgsdp.audio.tempo import tempo_from_music_id
 from dgsdp.errors import DataError
 from dgsdp.motion import smpl_to_pose
 
@@ -58,12 +59,11 @@ def parse_name(name: str) -> SequenceName:
 
 
 def music_tempo_bpm(music_id: str) -> float:
-    """Tempo encoded in an AIST++ music id: ``m<G><d>`` is 80 + 10 d BPM, House (``mHO<d>``) 110 + 5 d BPM."""
-    m = re.fullmatch(r"m([A-Z]{2})(\d+)", music_id)
-    if m is None:
+    """Tempo encoded in an AIST++ music id (``mBR0`` is 80 BPM, House ``mHO3`` 125 BPM); DataError if none."""
+    bpm = tempo_from_music_id(music_id)
+    if bpm is None:
         raise DataError(f"{music_id!r} is not an AIST++ music id (expected e.g. 'mBR0')")
-    genre, d = m[1], int(m[2])
-    return 110.0 + 5.0 * d if genre == "HO" else 80.0 + 10.0 * d
+    return bpm
 
 
 def _find_list(root: Path, filename: str) -> Path | None:
