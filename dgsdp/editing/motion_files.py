@@ -26,12 +26,7 @@ def _as_pose_array(data: object, path: Path) -> torch.Tensor:
     arr = np.asarray(data)
     if arr.ndim == 1 and arr.shape[0] == POSE_DIM:
         arr = arr[None]
-    if (
-        arr.ndim != 2
-        or arr.shape[1] != POSE_DIM
-        or arr.shape[0] == 0
-        or not np.issubdtype(arr.dtype, np.number)
-    ):
+    if arr.ndim != 2 or arr.shape[1] != POSE_DIM or arr.shape[0] == 0 or not np.issubdtype(arr.dtype, np.number):
         raise DataError(
             f"motion file {path} holds an array of shape {arr.shape} ({arr.dtype}); expected 151-d pose vectors "
             f"(N, {POSE_DIM}) (contacts, root translation, 24 x 6D rotations; z-up, 30 FPS) or an AIST++ "

@@ -138,9 +138,7 @@ class ChunkedDenoiser(nn.Module):
             def part(v: torch.Tensor | None, sl: slice = sl) -> torch.Tensor | None:
                 return None if v is None else v[sl]
 
-            outs.append(
-                self.denoiser(x_t[sl], t[sl], part(music), part(style), part(keep_music), part(keep_style))
-            )
+            outs.append(self.denoiser(x_t[sl], t[sl], part(music), part(style), part(keep_music), part(keep_style)))
         return torch.cat(outs)
 
 

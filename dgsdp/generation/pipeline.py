@@ -214,9 +214,7 @@ class DanceGenerator:
         embedder = self.embedder()
         bank = self.model.style_bank
         if bank is not None and text in embedder.vocab:
-            return bank.mean_for(torch.tensor([embedder.vocab.index(text)], device=bank.vectors.device))[
-                0
-            ].cpu()
+            return bank.mean_for(torch.tensor([embedder.vocab.index(text)], device=bank.vectors.device))[0].cpu()
         return embedder.embed_text(text).float().cpu()
 
     def resolve_style(self, style: str | None) -> StylePlan:
@@ -231,9 +229,7 @@ class DanceGenerator:
                 )
             return StylePlan(None)
         if not self.style_dim:
-            raise ConfigError(
-                f"this model was trained without style conditioning (style=none); drop style={text!r}"
-            )
+            raise ConfigError(f"this model was trained without style conditioning (style=none); drop style={text!r}")
         if is_schedule(text):
             spans = parse_schedule(text)
             for span in spans:
@@ -244,9 +240,7 @@ class DanceGenerator:
     def style_frames(self, plan: StylePlan, n_frames: int, blend_seconds: float) -> torch.Tensor | None:
         """(ds,) for one style, (n_frames, ds) for a schedule, None without style."""
         if plan.spans is not None:
-            return schedule_styles(
-                plan.spans, n_frames, self.embed_style, fps=self.fps, blend_seconds=blend_seconds
-            )
+            return schedule_styles(plan.spans, n_frames, self.embed_style, fps=self.fps, blend_seconds=blend_seconds)
         return plan.vector
 
     # --- editing --------------------------------------------------------------------------------------------
@@ -307,11 +301,7 @@ class DanceGenerator:
         generator = None
         if seed is not None:
             generator = torch.Generator(device=self.device).manual_seed(int(seed))
-        autocast = (
-            torch.autocast(self.device.type, dtype=torch.bfloat16)
-            if sampling.bf16
-            else contextlib.nullcontext()
-        )
+        autocast = torch.autocast(self.device.type, dtype=torch.bfloat16) if sampling.bf16 else contextlib.nullcontext()
         with autocast:
             motion = sample_long(
                 self.model.sampler(),

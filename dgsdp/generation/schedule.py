@@ -23,9 +23,7 @@ from dgsdp.errors import ConfigError
 
 SCHEDULE_EXAMPLE = '0-30: krump; 30-60: "slow graceful ballet jazz"; 60-end: house'
 _NUMBER = r"\d+(?:\.\d*)?|\.\d+"
-_SPAN_HEAD = re.compile(
-    rf"\s*(?P<start>{_NUMBER})\s*s?\s*-\s*(?P<end>{_NUMBER}|end)\s*s?\s*:\s*", re.IGNORECASE
-)
+_SPAN_HEAD = re.compile(rf"\s*(?P<start>{_NUMBER})\s*s?\s*-\s*(?P<end>{_NUMBER}|end)\s*s?\s*:\s*", re.IGNORECASE)
 _LOOKS_LIKE_SCHEDULE = re.compile(rf"^\s*(?:{_NUMBER})\s*s?\s*-\s*(?:{_NUMBER}|end)\s*s?\s*:", re.IGNORECASE)
 
 
