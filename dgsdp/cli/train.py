@@ -94,6 +94,12 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     if last.is_file():
         log.info("checkpoint: %s", last)
         result["checkpoint"] = str(last)
+    if cfg.get("evaluate"):
+        if "checkpoint" not in result:
+            raise ConfigError("evaluate= needs the final checkpoint: keep callbacks.model_checkpoint (save_last)")
+        from dgsdp.cli.evaluate import evaluate_after_training
+
+        result["evaluation"] = evaluate_after_training(cfg, result["checkpoint"], group_choices())
     return result
 
 
