@@ -60,6 +60,7 @@ def run_info(model: Any) -> dict[str, Any]:
         "experiment": groups.get("experiment"),
         "groups": groups,
         "run_dir": (config.get("paths") or {}).get("output_dir"),
+        "wandb_project": ((config.get("logger") or {}).get("wandb") or {}).get("project"),
     }
 
 
