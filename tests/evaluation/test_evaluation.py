@@ -1,0 +1,228 @@
+"""Evaluation protocols on a tiny trained checkpoint: finite results, the ground-truth row recomputed
+independently with the metric functions, long-form, masking and Bailando protocols, defined values for n/a."""
+
+import json
+import math
+import warnings
+
+import numpy as np
+import pytest
+import torch
+from conftest import compose_eval
+
+from dgsdp.audio import FeatureCache, LibrosaEncoder
+from dgsdp.cli.config import compose_config
+from dgsdp.cli.evaluate import evaluate
+from dgsdp.data.aistpp import music_path
+from dgsdp.data.datamodule import load_sequences
+from dgsdp.errors import ConfigError, DataError
+from dgsdp.evaluation import Evaluator, ProtocolSpec, Variant, results_markdown, summarise, upsample_joints
+from dgsdp.evaluation.runner import WarningLog
+from dgsdp.metrics import (
+    GenreClassifier,
+    MetricError,
+    beat_alignment,
+    diversity,
+    geometric_features,
+    kinetic_features,
+    music_beats_from_features,
+    pfc,
+)
+from dgsdp.motion import pose_to_joints
+from dgsdp.training import load_checkpoint
+
+METRIC_NAMES = ["BeatAlign", "PFC", "FID_k", "FID_g", "Div_k", "Div_g", "StyleAcc"]
+
+
+def rows_by_name(results):
+    return {r["name"]: r for r in results["rows"]}
+
+
+def test_upsample_is_linear_and_keeps_frames():
+    joints = np.zeros((3, 24, 3))
+    joints[:, 5, 1] = [0.0, 2.0, 6.0]
+    up = upsample_joints(joints)
+    assert up.shape == (5, 24, 3)
+    np.testing.assert_allclose(up[:, 5, 1], [0.0, 1.0, 2.0, 4.0, 6.0])
+
+
+@pytest.mark.parametrize(
+    ("protocol", "names"),
+    [
+        ("table1", ["w=2", "w=1"]),
+        ("table2", ["7.5s", "10s"]),
+        ("table3", ["seed_motion", "inbetween", "inpaint", "upper_body", "lower_body"]),
+        ("bailando", ["generated"]),
+    ],
+)
+def test_protocol_configs_give_the_paper_rows(tmp_path, protocol, names):
+    cfg = compose_config("evaluate", [f"protocol={protocol}"], output_dir=tmp_path)
+    from omegaconf import OmegaConf
+
+    spec = ProtocolSpec.from_config(OmegaConf.to_container(cfg.protocol, resolve=True))
+    assert [v.name for v in spec.variants()] == names
+    assert spec.name == protocol
+
+
+def test_protocol_rejects_unknown_settings_and_tasks():
+    with pytest.raises(ConfigError, match="unknown protocol setting"):
+        ProtocolSpec.from_config({"name": "x", "trails": 3})
+    with pytest.raises(ConfigError, match="unknown editing task"):
+        ProtocolSpec.from_config({"name": "x", "tasks": ["teleport"]})
+
+
+def test_undefined_metric_is_none_with_a_warning_and_na_in_markdown():
+    log = WarningLog()
+
+    def broken():
+        raise MetricError("too few dances")
+
+    assert log.guard("w=2", "FID_k", broken) is None
+    assert log.guard("w=2", "PFC", lambda: float("nan")) is None
+    assert [w["metric"] for w in log.items] == ["FID_k", "PFC"]
+    summary = summarise([None, None])
+    assert summary["mean"] is None and summary["n"] == 0
+    row = {"name": "w=2", "trials": 2, "metrics": {m: summary for m in METRIC_NAMES}}
+    md = results_markdown({"protocol": "table1", "rows": [row], "warnings": log.items})
+    table = md.split("Warnings")[0]
+    assert "| w=2 | n/a | n/a |" in table and "nan" not in table.lower()
+    assert "non-finite value nan; reported as n/a" in md
+
+
+def test_summarise_mean_and_sample_std():
+    s = summarise([1.0, 2.0, None, 4.0])
+    assert s["mean"] == pytest.approx(7 / 3)
+    assert s["std"] == pytest.approx(np.std([1.0, 2.0, 4.0], ddof=1))
+    assert s["n"] == 3
+
+
+def test_table1_after_training_writes_finite_json_markdown_and_csv(trained_run):
+    path = trained_run["evaluation"]["table1"]
+    results = json.loads(open(path).read())
+    rows = rows_by_name(results)
+    assert set(rows) == {"w=2", "w=1", "ground_truth"}
+    for name in ("w=2", "w=1"):
+        assert rows[name]["trials"] == 2 and rows[name]["n_dances"] == 10
+        for metric in METRIC_NAMES:
+            summary = rows[name]["metrics"][metric]
+            assert summary["n"] == 2 and math.isfinite(summary["mean"]) and math.isfinite(summary["std"])
+    assert rows["ground_truth"]["metrics"]["FID_k"]["mean"] is None  # the reference set itself: n/a, not 0
+    assert results["run"]["seed"] == 0 and results["protocol"] == "table1"
+    md = (trained_run["dir"] / "evaluation" / "table1" / "results.md").read_text()
+    assert "| w=2 |" in md and "| ground_truth |" in md and "nan" not in md.lower()
+    csv_text = (trained_run["dir"] / "evaluation" / "table1" / "csv" / "metrics.csv").read_text()
+    assert "eval/table1/w=2/FID_k" in csv_text
+
+
+def _independent_features(joints_z_up_30):
+    """Upsample to 60 FPS by averaging neighbours, rotate to y-up, anchor the root: written apart from the code."""
+    t = len(joints_z_up_30)
+    up = np.empty((2 * t - 1, 24, 3))
+    up[0::2] = joints_z_up_30
+    up[1::2] = 0.5 * (joints_z_up_30[:-1] + joints_z_up_30[1:])
+    y_up = np.stack([up[..., 0], up[..., 2], -up[..., 1]], axis=-1)
+    return y_up - y_up[0, 0]
+
+
+def test_ground_truth_row_matches_an_independent_computation(trained_run):
+    results = json.loads(open(trained_run["evaluation"]["table1"]).read())
+    gt = rows_by_name(results)["ground_truth"]["metrics"]
+    cache = trained_run["cache"]
+    test = load_sequences(trained_run["root"], "test", cache_dir=cache, progress=False)
+    train = load_sequences(trained_run["root"], "train", cache_dir=cache, progress=False)
+    encoder = LibrosaEncoder()
+    features = FeatureCache(cache)
+
+    def clips(seqs):  # 5 s clips, 2.5 s stride: the 7 s dances give one clip each, starting at frame 0
+        return [s.motion[:150] for s in seqs if len(s.motion) >= 150]
+
+    joints = [pose_to_joints(torch.from_numpy(m).double()).numpy() for m in clips(test)]
+    prepared = [_independent_features(j) for j in joints]
+    kin = np.stack([kinetic_features(p, fps=60) for p in prepared])
+    geo = np.stack([geometric_features(p, fps=60) for p in prepared])
+    ba = []
+    for seq, p in zip(test, prepared):
+        feats = features.features_for_file(
+            encoder, music_path(trained_run["root"], seq.music_id), music_id=seq.music_id
+        )
+        beats = music_beats_from_features(feats)
+        ba.append(beat_alignment(p, 2 * beats[beats < 150], fps=60))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        expected = {
+            "BeatAlign": np.mean(ba),
+            "PFC": np.mean([pfc(j, fps=30, up_axis="z") for j in joints]),
+            "Div_k": diversity(kin, kin),
+            "Div_g": diversity(geo, geo),
+        }
+        train_joints = [pose_to_joints(torch.from_numpy(m).double()).numpy() for m in clips(train)]
+        train_prep = [_independent_features(j) for j in train_joints]
+        train_x = np.hstack([
+            np.stack([kinetic_features(p, fps=60) for p in train_prep]),
+            np.stack([geometric_features(p, fps=60) for p in train_prep]),
+        ])  # fmt: skip
+        clf = GenreClassifier().fit(train_x, [s.genre_index for s in train])
+        expected["StyleAcc"] = clf.accuracy(np.hstack([kin, geo]), [s.genre_index for s in test])
+    for metric, value in expected.items():
+        assert gt[metric]["mean"] == pytest.approx(value, rel=1e-6, abs=1e-9), metric
+    assert expected["BeatAlign"] > 0.1  # the synthetic dances move on the beat: a score that can fail
+
+
+def test_longform_and_masking_protocols(trained_run, tmp_path):
+    # The 7 s synthetic dances fit 6 s long-form clips (two 5 s windows with a 2.5 s stride).
+    cfg = compose_eval(trained_run, tmp_path / "t2", "protocol=table2", "protocol.lengths_seconds=[6.0]",
+                       "protocol.trials=1", "protocol.max_dances=4")  # fmt: skip
+    rows = rows_by_name(evaluate(cfg)["results"])
+    assert set(rows) == {"6s", "ground_truth, 6s"}
+    assert all(math.isfinite(rows["6s"]["metrics"][m]["mean"]) for m in METRIC_NAMES)
+    assert (tmp_path / "t2" / "results.md").is_file()
+
+    cfg = compose_eval(trained_run, tmp_path / "t3", "protocol=table3", "protocol.trials=1", "protocol.max_dances=4")
+    rows = rows_by_name(evaluate(cfg)["results"])
+    assert set(rows) == {"seed_motion", "inbetween", "inpaint", "upper_body", "lower_body", "ground_truth"}
+    for task in ("seed_motion", "upper_body"):
+        assert all(math.isfinite(rows[task]["metrics"][m]["mean"]) for m in ("BeatAlign", "PFC", "Div_k", "FID_g"))
+
+
+def test_masked_rows_keep_the_given_motion(trained_run):
+    model = load_checkpoint(trained_run["checkpoint"])
+    spec = ProtocolSpec.from_config({"name": "t", "tasks": ["seed_motion"], "seed_frames": 20})
+    ev = Evaluator(model, spec, data_root=trained_run["root"], cache_dir=trained_run["cache"], progress=False)
+    ev.sampling.steps = 2
+    seqs = ev.load_split("test", ev.audio_encoder())
+    clips = ev.clips(seqs, 5.0)[:2]
+    joints = ev.sample(clips, Variant(5.0, 2.0, "seed_motion", "seed_motion"), trial=0)
+    for clip, j in zip(clips, joints):
+        real = pose_to_joints(torch.from_numpy(clip.motion).double()).numpy()
+        np.testing.assert_allclose(j[:20], real[:20], atol=1e-4)
+        assert np.abs(j[40:] - real[40:]).max() > 1e-2  # the rest is generated
+
+
+def test_subsets_cover_every_genre(trained_run):
+    model = load_checkpoint(trained_run["checkpoint"])
+    spec = ProtocolSpec.from_config({"name": "t", "clips_per_trial": 10})
+    ev = Evaluator(model, spec, data_root=trained_run["root"], cache_dir=trained_run["cache"], progress=False)
+    clips = ev.clips(ev.load_split("test", None), 2.0)  # 7 s dances, 2 s clips every 2.5 s: 3 per dance
+    assert len(clips) == 30
+    for trial in range(3):
+        idx = ev.subset(clips, trial)
+        assert len(idx) == 10 and len({clips[i].seq.genre_index for i in idx}) == 10
+    assert ev.subset(clips, 0) != ev.subset(clips, 1)
+
+
+def test_bailando_protocol_uses_the_dataset_pool_and_skips_missing_splits(trained_run, tmp_path):
+    cfg = compose_eval(trained_run, tmp_path / "b", "protocol=bailando")
+    results = evaluate(cfg)["results"]
+    rows = rows_by_name(results)
+    assert set(rows) == {"generated", "ground_truth"}
+    assert rows["ground_truth"]["n_dances"] == 10  # the synthetic set has no val split: the 10 test dances
+    assert math.isfinite(rows["ground_truth"]["metrics"]["FID_k"]["mean"])  # real test dances vs the whole pool
+    assert any("'val' skipped" in w["message"] for w in results["warnings"])
+
+
+def test_clear_errors(trained_run, tmp_path):
+    with pytest.raises(ConfigError, match="checkpoint="):
+        evaluate(compose_config("evaluate", ["progress=false"], output_dir=tmp_path))
+    cfg = compose_eval(trained_run, tmp_path / "x", "protocol=table2", "protocol.trials=1")
+    with pytest.raises(DataError, match="lengths_seconds"):
+        evaluate(cfg)  # 7.5 s and 10 s clips do not fit the 7 s dances
