@@ -6,7 +6,7 @@ A sweep file (``sweeps/<table>.yaml``) is a global config appended to the traini
 checks the grid before launching (Hydra's ``glob()`` matching nothing would silently launch zero jobs and exit 0),
 launches with the joblib launcher (``--jobs`` in parallel) unless a ``hydra/launcher=...`` override picks another
 (``submitit_slurm`` for SLURM), and checks afterwards that every expected job ran. Overrides are appended to every
-job (``debug=tiny data.root=...``); ``key=a,b`` overrides extend or replace the file's grid.
+job (``debug=tiny data.root=...``); ``key=a,b`` overrides extend the file's grid, and any override of a key the file sweeps replaces it.
 """
 
 from __future__ import annotations
@@ -67,8 +67,9 @@ def sweep_grid(sweep_file: Path, overrides: list[str]) -> dict[str, list[str]]:
     parser = OverridesParser.create()
     for line in overrides:
         parsed = parser.parse_overrides([line])[0]
-        if parsed.is_sweep_override():
-            lines[parsed.key_or_group.lstrip("+")] = line.lstrip("+")
+        key = parsed.key_or_group.lstrip("+")
+        if parsed.is_sweep_override() or key in lines:  # the command line wins over the file, as in Hydra
+            lines[key] = line.lstrip("+")
     grid: dict[str, list[str]] = {}
     for key, line in lines.items():
         override = parser.parse_overrides([line])[0]
