@@ -75,6 +75,8 @@ def dance_features(motion: torch.Tensor) -> np.ndarray:
 
 
 def windows(motion: torch.Tensor, start: int, stop: int, length: int = 150, stride: int = 75):
+    """Whole windows of ``length`` frames starting every ``stride`` frames within [start, min(stop, T))."""
+    stop = min(stop, len(motion))
     return [motion[s : s + length] for s in range(start, stop - length + 1, stride)]
 
 
