@@ -60,15 +60,6 @@ def resample_frames(features: np.ndarray, rate_hz: float, fps: float, res_type: 
     return np.ascontiguousarray(out.T, dtype=np.float32)
 
 
-def resolve_device(device: str) -> str:
-    """``"auto"`` -> ``"cuda"`` when a GPU is visible, else ``"cpu"``; other values pass through."""
-    if device == "auto":
-        import torch
-
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    return str(device)
-
-
 class AudioEncoder(abc.ABC):
     """Base class of the interchangeable audio encoders (librosa, Encodec, Jukebox).
 

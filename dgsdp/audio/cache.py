@@ -47,9 +47,7 @@ class FeatureCache:
         extra = encoder.music_id_key(music_id) if encoder.uses_music_id else ""
         return f"{key}-{extra}" if extra else key
 
-    def contains(
-        self, encoder: AudioEncoder, audio_path: str | os.PathLike, music_id: str | None = None
-    ) -> bool:
+    def contains(self, encoder: AudioEncoder, audio_path: str | os.PathLike, music_id: str | None = None) -> bool:
         return self.key(encoder, audio_path, music_id) in self.disk_cache(encoder)
 
     def features_for_file(

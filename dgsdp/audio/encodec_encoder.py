@@ -20,8 +20,9 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 import torch
 
-from dgsdp.audio.base import AudioEncoder, resample_frames, resolve_device
+from dgsdp.audio.base import AudioEncoder, resample_frames
 from dgsdp.errors import ConfigError, WeightsError
+from dgsdp.utils.device import resolve_device
 
 if TYPE_CHECKING:
     from transformers import EncodecConfig, EncodecModel
@@ -101,8 +102,7 @@ class EncodecEncoder(AudioEncoder):
             offline = os.environ.get("HF_HUB_OFFLINE", "0") not in ("", "0", "false", "False")
             reason = "offline mode (HF_HUB_OFFLINE) is set" if offline else "the hub could not be reached"
             raise WeightsError(
-                f"Cannot load Encodec weights from '{source}' ({reason} or the files are missing: {err}). "
-                f"{how_to}"
+                f"Cannot load Encodec weights from '{source}' ({reason} or the files are missing: {err}). {how_to}"
             ) from err
 
     def settings(self) -> dict[str, Any]:

@@ -21,9 +21,7 @@ AUDIO_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3", ".m4a")
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--encoder", required=True, choices=sorted(AUDIO_ENCODERS))
-    parser.add_argument(
-        "--wavs", required=True, type=Path, help="folder of audio files (searched recursively)"
-    )
+    parser.add_argument("--wavs", required=True, type=Path, help="folder of audio files (searched recursively)")
     parser.add_argument("--cache", required=True, type=Path, help="feature cache folder")
     parser.add_argument(
         "--set",

@@ -39,8 +39,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from dgsdp.audio.base import AudioEncoder, fit_frames, resample_frames, resolve_device
+from dgsdp.audio.base import AudioEncoder, fit_frames, resample_frames
 from dgsdp.errors import ConfigError, WeightsError
+from dgsdp.utils.device import resolve_device
 
 JUKEBOX_SAMPLE_RATE = 44100
 # Total song length given to the label conditioner; the 5B prior was trained on 60-600 s songs.
@@ -232,9 +233,7 @@ class JukeboxEncoder(AudioEncoder):
         missing = [p for p in paths.values() if not p.is_file()]
         if missing:
             folder = next(iter(paths.values())).parent
-            downloads = " && ".join(
-                f"curl -L -o {folder / f} {WEIGHTS_URL}{f}" for f in WEIGHT_FILES.values()
-            )
+            downloads = " && ".join(f"curl -L -o {folder / f} {WEIGHTS_URL}{f}" for f in WEIGHT_FILES.values())
             raise WeightsError(
                 f"Jukebox weights not found: {', '.join(str(p) for p in missing)}. Put OpenAI's 5B files "
                 f"vqvae.pth.tar and prior_level_2.pth.tar (about 10 GB together) in {folder} "
@@ -352,9 +351,7 @@ class JukeboxEncoder(AudioEncoder):
     def _encode(self, waveform: np.ndarray, music_id: str | None) -> np.ndarray:
         slice_samples = int(round(self.slice_seconds * self.sample_rate))
         n_frames = (waveform.shape[0] * self.fps) // self.sample_rate
-        out: np.ndarray | None = (
-            None  # allocated at the first slice, once the model (and its width) is loaded
-        )
+        out: np.ndarray | None = None  # allocated at the first slice, once the model (and its width) is loaded
         filled = 0
         for start in slice_starts(waveform.shape[0], slice_samples):
             piece = waveform[start : start + slice_samples]

@@ -38,9 +38,7 @@ class LibrosaEncoder(AudioEncoder):
         use_music_id_tempo: bool = True,
     ) -> None:
         if sample_rate % hop_length != 0 or sample_rate // hop_length != self.fps:
-            raise ValueError(
-                f"sample_rate / hop_length must equal {self.fps} FPS, got {sample_rate} / {hop_length}"
-            )
+            raise ValueError(f"sample_rate / hop_length must equal {self.fps} FPS, got {sample_rate} / {hop_length}")
         self.sample_rate = int(sample_rate)
         self.hop_length = int(hop_length)
         self.n_mfcc = int(n_mfcc)

@@ -38,9 +38,7 @@ def main(argv: list[str] | None = None) -> None:
 
     encoder = LibrosaEncoder()
     song = synthetic_song(args.song_seconds, 120.0, encoder.sample_rate)
-    encoder.encode(
-        song[: 2 * encoder.sample_rate], encoder.sample_rate
-    )  # warm-up: numba compiles on first use
+    encoder.encode(song[: 2 * encoder.sample_rate], encoder.sample_rate)  # warm-up: numba compiles on first use
     start = time.perf_counter()
     features = encoder.encode(song, encoder.sample_rate, music_id="mBR4")
     seconds = time.perf_counter() - start

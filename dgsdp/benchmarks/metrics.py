@@ -212,9 +212,7 @@ def main() -> None:
     print(f"  vectorised:            {r['vectorised_s']:.3f} s (best of 3)")
     print(f"  per-frame loop:        {r['loop_extrapolated_s']:.1f} s (extrapolated from {args.loop_subset})")
     print(f"  speed-up:              {r['speedup']:.0f}x")
-    print(
-        f"  max |diff| kinetic:    {r['max_abs_diff_kinetic']:.3g} (relative {r['max_rel_diff_kinetic']:.3g})"
-    )
+    print(f"  max |diff| kinetic:    {r['max_abs_diff_kinetic']:.3g} (relative {r['max_rel_diff_kinetic']:.3g})")
     print(f"  max |diff| geometric:  {r['max_abs_diff_geometric']:.3g}")
 
 

@@ -21,13 +21,10 @@ from dgsdp.errors import ConfigError, DgsdpError
 from dgsdp.evaluation.protocols import ProtocolSpec
 from dgsdp.evaluation.results import log_results, write_results
 from dgsdp.evaluation.runner import Evaluator, SamplingSettings
+from dgsdp.utils.device import resolve_device
 
 log = logging.getLogger(__name__)
 EVALUATION_DIR = "evaluation"
-
-
-def _device(name: str) -> str:
-    return ("cuda" if torch.cuda.is_available() else "cpu") if name == "auto" else name
 
 
 def _data_location(cfg: DictConfig, ckpt_config: dict[str, Any]) -> tuple[Path, Path]:
@@ -77,7 +74,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     sampling = SamplingSettings(**OmegaConf.to_container(cfg.sampling, resolve=True))
     evaluator = Evaluator(
         model, spec, data_root=root, cache_dir=cache, sampling=sampling, metrics_mode=cfg.metrics.mode,
-        classifier_method=cfg.metrics.classifier, seed=int(cfg.seed), device=_device(cfg.device),
+        classifier_method=cfg.metrics.classifier, seed=int(cfg.seed), device=resolve_device(cfg.device),
         progress=bool(cfg.progress),
     )  # fmt: skip
     results = evaluator.run()

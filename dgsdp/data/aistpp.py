@@ -132,9 +132,7 @@ def load_motion_pkl(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
             f"cannot read motion file {path} ({type(e).__name__}: {e}); re-download or regenerate it"
         ) from e
     if not isinstance(data, dict):
-        raise DataError(
-            f"motion file {path} holds a {type(data).__name__}, expected a dict with 'smpl_poses'"
-        )
+        raise DataError(f"motion file {path} holds a {type(data).__name__}, expected a dict with 'smpl_poses'")
     missing = [k for k in ("smpl_poses", "smpl_trans") if k not in data]
     if missing:
         raise DataError(
@@ -153,9 +151,7 @@ def load_motion_pkl(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return poses, trans / scaling
 
 
-def process_motion(
-    poses: np.ndarray, trans_m: np.ndarray, source_fps: int = SOURCE_FPS, fps: int = 30
-) -> np.ndarray:
+def process_motion(poses: np.ndarray, trans_m: np.ndarray, source_fps: int = SOURCE_FPS, fps: int = 30) -> np.ndarray:
     """AIST++ SMPL parameters (60 FPS, y-up) -> 151-d pose vectors (T, 151) at ``fps``, z-up."""
     if source_fps % fps:
         raise DataError(f"cannot resample {source_fps} FPS motion to {fps} FPS by taking every n-th frame")

@@ -57,9 +57,7 @@ class SyntheticSettings:
         if unknown or not self.genres:
             raise ConfigError(f"unknown genres {unknown}; choose from {', '.join(GENRE_CODES)}")
         if self.sequences_per_genre < 2:
-            raise ConfigError(
-                "sequences_per_genre must be >= 2 (one for training and one for the test split)"
-            )
+            raise ConfigError("sequences_per_genre must be >= 2 (one for training and one for the test split)")
         if self.seconds < 2.0:
             raise ConfigError(f"seconds must be >= 2 (got {self.seconds}); dances need a few beats")
         if self.sample_rate_hz < 8000:
@@ -110,9 +108,7 @@ def plan_dataset(settings: SyntheticSettings) -> list[SequencePlan]:
             dancer = DANCERS_PER_GENRE * code_index + 1 + i % DANCERS_PER_GENRE
             name = f"g{genre}_s{'BM' if basic else 'FM'}_cAll_d{dancer:02d}_{music_id}_ch{i + 1:02d}"
             split = "test" if d == test_music else "train"
-            plans.append(
-                SequencePlan(name, genre, music_id, music_tempo_bpm(music_id), split, basic, dancer, ignored)
-            )
+            plans.append(SequencePlan(name, genre, music_id, music_tempo_bpm(music_id), split, basic, dancer, ignored))
     return plans
 
 
@@ -206,9 +202,7 @@ def generate_synthetic_aistpp(
     sequences: dict[str, dict] = {}
     for plan in plans:
         rng = _rng(settings.seed, plan.name)
-        poses, trans_m = synthesize_dance(
-            plan.genre, beats[plan.music_id], num_frames, rng=rng, basic=plan.basic
-        )
+        poses, trans_m = synthesize_dance(plan.genre, beats[plan.music_id], num_frames, rng=rng, basic=plan.basic)
         loss = float(rng.uniform(0.5, 2.0))
         if plan.ignored:  # a failed fit: jittering joints, a large fitting loss
             poses = poses + rng.normal(0.0, 0.15, poses.shape)
@@ -277,9 +271,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seconds", type=float, default=16.0, help="length of each dance and its music")
     parser.add_argument("--sample-rate", type=int, default=44100, help="wav sample rate in Hz")
     parser.add_argument("--genres", nargs="+", default=None, help=f"subset of {' '.join(GENRE_CODES)}")
-    parser.add_argument(
-        "--num-ignored", type=int, default=1, help="extra bad takes listed in ignore_list.txt"
-    )
+    parser.add_argument("--num-ignored", type=int, default=1, help="extra bad takes listed in ignore_list.txt")
     parser.add_argument("--overwrite", action="store_true", help="generate even if a matching dataset exists")
     parser.add_argument("--verbose", action="store_true")
     args = parser.parse_args(argv)

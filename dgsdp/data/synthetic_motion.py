@@ -54,9 +54,7 @@ class DanceStyle:
     body_ease: tuple[float, float]
     step_prob: float  # chance that a beat moves a foot
     step_m: float  # how far a stepping foot leaves its home position
-    step_directions: tuple[
-        tuple[float, float], ...
-    ]  # body-frame (x left, z forward) unit-ish step directions
+    step_directions: tuple[tuple[float, float], ...]  # body-frame (x left, z forward) unit-ish step directions
     lift_m: float  # swing foot lift
     kick_prob: float = 0.0  # of the foot moves, the fraction that are kicks (out and back, high)
     kick_m: float = 0.0
@@ -310,9 +308,7 @@ def _choreograph(style: DanceStyle, num_keys: int, basic: bool, rng: np.random.G
                 signs[3, j] * style.torso_yaw_deg * amp,
                 signs[4, j] * style.torso_roll_deg * amp,
             )
-            head[start + i] = (-signs[2, j] * style.head_deg * 0.5, signs[3, j] * style.head_deg) * np.array(
-                amp
-            )
+            head[start + i] = (-signs[2, j] * style.head_deg * 0.5, signs[3, j] * style.head_deg) * np.array(amp)
             shrug[start + i] = signs[0, j] * style.shrug_deg, -signs[0, j] * style.shrug_deg
             pelvis_roll[start + i] = signs[4, j] * style.hip_roll_deg
             if style.level_m > 0 and rng.random() < 0.3:
@@ -489,9 +485,7 @@ def synthesize_dance(
     # Feet: toes eased between placements with a lift (and kick) on the way; the swing profile rises faster than
     # the foot travels, so a foot leaves and lands vertically.
     toe_xz = line.ease(keys.toe_xz, (max(body[0], 2.0), max(body[1], 2.0)))  # (T, 2, 2)
-    swing = line.bump(keys.swing * [0.0, 1.0, 0.0]) + line.bump(
-        keys.swing * [1.0, 0.0, 1.0], power=4.0
-    )  # (T, 2, 3)
+    swing = line.bump(keys.swing * [0.0, 1.0, 0.0]) + line.bump(keys.swing * [1.0, 0.0, 1.0], power=4.0)  # (T, 2, 3)
     toe = np.stack([toe_xz[..., 0], np.zeros(toe_xz.shape[:2]), toe_xz[..., 1]], -1) + swing
     foot_yaw = line.ease(keys.foot_yaw, body)
     heel = line.ease(keys.heel, body) + line.bump(np.abs(keys.swing[..., 1]) * 2.0)  # point the swinging foot
@@ -507,9 +501,7 @@ def synthesize_dance(
     weight = line.ease(keys.weight, body)
     feet_xz = ankle[..., [0, 2]]
     pelvis_xz = weight[:, None] * feet_xz[:, 0] + (1 - weight[:, None]) * feet_xz[:, 1]
-    pelvis_xz = pelvis_xz - 0.03 * np.stack(
-        [np.sin(yaw), np.cos(yaw)], -1
-    )  # hips sit slightly behind the feet
+    pelvis_xz = pelvis_xz - 0.03 * np.stack([np.sin(yaw), np.cos(yaw)], -1)  # hips sit slightly behind the feet
     pelvis_y = line.ease(keys.level, body) + line.bump(keys.bounce)
     # Lower the pelvis where a planted foot could not otherwise be reached.
     for side, hip_joint in ((0, L_HIP), (1, R_HIP)):
@@ -523,9 +515,7 @@ def synthesize_dance(
 
     local = np.broadcast_to(np.eye(3), (num_frames, NUM_JOINTS, 3, 3)).copy()
     local[:, PELVIS] = root_rot
-    for side, (hip_joint, knee_joint, ankle_joint) in enumerate(
-        ((L_HIP, L_KNEE, L_ANKLE), (R_HIP, R_KNEE, R_ANKLE))
-    ):
+    for side, (hip_joint, knee_joint, ankle_joint) in enumerate(((L_HIP, L_KNEE, L_ANKLE), (R_HIP, R_KNEE, R_ANKLE))):
         hip_pos = root + _apply(root_rot, offsets[hip_joint])
         local[:, hip_joint], local[:, knee_joint], local[:, ankle_joint] = _leg_ik(
             hip_pos, root_rot, ankle[:, side], foot_rot[:, side], side, offsets

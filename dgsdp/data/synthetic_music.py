@@ -138,9 +138,7 @@ def _bandpass_noise(n: int, low_hz: float, high_hz: float, sample_rate_hz: int, 
     return lfilter([1 - a_lp], [1, -a_lp], hp)
 
 
-def _instrument_sounds(
-    style: MusicStyle, sample_rate_hz: int, rng: np.random.Generator
-) -> dict[str, np.ndarray]:
+def _instrument_sounds(style: MusicStyle, sample_rate_hz: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
     """One sample per instrument, peak-normalised; each starts with a sharp attack (the onset)."""
     sr = sample_rate_hz
     sounds: dict[str, np.ndarray] = {}
@@ -176,9 +174,7 @@ def _instrument_sounds(
         hat = _bandpass_noise(n, low_hz, 16000, sr, rng)
         if name == "ride":
             ring = np.arange(n) / sr
-            hat = hat / np.abs(hat).max() + 0.3 * np.sin(2 * np.pi * 3200 * ring) * np.sin(
-                2 * np.pi * 4700 * ring
-            )
+            hat = hat / np.abs(hat).max() + 0.3 * np.sin(2 * np.pi * 3200 * ring) * np.sin(2 * np.pi * 4700 * ring)
         sounds[name] = hat / np.abs(hat).max() * _decay(n, decay_s, sr)
 
     n = int(sr * 3 * style.tone_decay_s)
@@ -235,9 +231,7 @@ def synthesize_music(
     # Every beat also gets a short broadband click, so that the beats, not quieter off-beat cymbals, carry the
     # strongest onsets in every frequency band.
     hits = style.hits + _on_beats("hat", 0.5)
-    out = np.zeros(
-        total + max(len(s) for s in sounds.values()), dtype=np.float64
-    )  # tail room for the last hits
+    out = np.zeros(total + max(len(s) for s in sounds.values()), dtype=np.float64)  # tail room for the last hits
 
     # Bars start one beat-pattern before the first beat so that pickup events fill the start.
     bar_starts = np.arange(first_beat_s - 4 * period_s, seconds, 4 * period_s)

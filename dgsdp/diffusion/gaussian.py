@@ -74,8 +74,7 @@ class GaussianDiffusion(nn.Module):
     def q_sample(self, x0: torch.Tensor, t: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
         """Noise x0 (B, ...) to step t (B,): sqrt(abar) x0 + sqrt(1 - abar) noise."""
         return (
-            self._at(self.sqrt_alpha_bar, t, x0.ndim) * x0
-            + self._at(self.sqrt_one_minus_alpha_bar, t, x0.ndim) * noise
+            self._at(self.sqrt_alpha_bar, t, x0.ndim) * x0 + self._at(self.sqrt_one_minus_alpha_bar, t, x0.ndim) * noise
         )
 
     def predict_noise(self, x_t: torch.Tensor, t: torch.Tensor, x0: torch.Tensor) -> torch.Tensor:

@@ -199,9 +199,7 @@ def ffmpeg_available() -> bool:
     return shutil.which("ffmpeg") is not None
 
 
-def _frames(
-    joints: np.ndarray, camera: Camera, size: tuple[int, int], title: str | None
-) -> Iterator[np.ndarray]:
+def _frames(joints: np.ndarray, camera: Camera, size: tuple[int, int], title: str | None) -> Iterator[np.ndarray]:
     for pose in joints:
         yield render_frame(pose, camera, size, title)
 

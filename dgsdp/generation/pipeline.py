@@ -27,6 +27,7 @@ from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styl
 from dgsdp.motion import POSE_DIM, pose_to_joints, unpack_pose
 from dgsdp.sampling import Guidance
 from dgsdp.training.module import DanceDiffusion, load_checkpoint
+from dgsdp.utils.device import resolve_device
 from dgsdp.utils.io import atomic_path
 
 log = logging.getLogger(__name__)
@@ -324,13 +325,6 @@ class DanceGenerator:
                 progress=progress,
             )
         return motion.float().cpu()
-
-
-def resolve_device(device: str) -> str:
-    """``auto`` -> ``cuda`` when available, else ``cpu``."""
-    if device == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    return str(device)
 
 
 def write_motion(

@@ -32,8 +32,7 @@ def check_joints(joints: np.ndarray, name: str = "joints", min_frames: int = 1) 
         )
     if arr.shape[0] < min_frames:
         raise MetricError(
-            f"{name} has {arr.shape[0]} frame(s) but this metric needs at least {min_frames}; "
-            "pass a longer motion."
+            f"{name} has {arr.shape[0]} frame(s) but this metric needs at least {min_frames}; pass a longer motion."
         )
     if not np.isfinite(arr).all():
         bad_frames = np.unique(np.nonzero(~np.isfinite(arr))[0])
@@ -80,9 +79,7 @@ def anchor_root(joints: np.ndarray) -> np.ndarray:
     return arr - arr[:1, :1, :]
 
 
-def stack_by_length(
-    joints_list: list[np.ndarray] | np.ndarray, min_frames: int
-) -> list[tuple[np.ndarray, np.ndarray]]:
+def stack_by_length(joints_list: list[np.ndarray] | np.ndarray, min_frames: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """Check every (T_n, 24, 3) motion and group equal lengths for batched computation.
 
     Returns a list of (indices (B,), stacked joints (B, T, 24, 3)) so callers can scatter results back

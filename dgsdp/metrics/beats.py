@@ -64,9 +64,7 @@ def beat_alignment_from_beats(
     return float(np.mean(np.exp(-nearest_sq / (2.0 * sigma**2))))
 
 
-def beat_alignment(
-    joints: np.ndarray, music_beats: np.ndarray, fps: float = 60, variant: str = "bailando"
-) -> float:
+def beat_alignment(joints: np.ndarray, music_beats: np.ndarray, fps: float = 60, variant: str = "bailando") -> float:
     """Beat alignment score of one dance.
 
     joints: (T, 24, 3) metres; music_beats: (K,) frame indices at the same ``fps``. As in the reference,

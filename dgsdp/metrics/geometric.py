@@ -160,16 +160,11 @@ def _geometric_core(positions: np.ndarray, fps: float, mode: str) -> np.ndarray:
     frames = _Frames(positions)
     velocity_scale = PAPER_VELOCITY_SCALE if mode == "paper" else float(fps)
     with np.errstate(invalid="ignore", divide="ignore"):
-        flags = [
-            _evaluate(frames, kind, names, param, mode, velocity_scale)
-            for kind, names, param in FEATURE_SPECS
-        ]
+        flags = [_evaluate(frames, kind, names, param, mode, velocity_scale) for kind, names, param in FEATURE_SPECS]
     return np.stack(flags, axis=-1).mean(axis=1)  # (B, 32): fraction of frames 1..T-1
 
 
-def geometric_features(
-    joints: np.ndarray, fps: float = 60, up_axis: str = "y", mode: str = "paper"
-) -> np.ndarray:
+def geometric_features(joints: np.ndarray, fps: float = 60, up_axis: str = "y", mode: str = "paper") -> np.ndarray:
     """32 geometric features of one motion: the fraction of frames 1..T-1 on which each relation holds.
 
     joints: (T, 24, 3) positions in metres (SMPL joint order), T >= 2; ``up_axis="z"`` input is rotated

@@ -77,9 +77,7 @@ def _kinetic_core(positions: np.ndarray, fps: float, mode: str) -> np.ndarray:
     return features.reshape(batch, n_joints * 3)
 
 
-def kinetic_features(
-    joints: np.ndarray, fps: float = 60, up_axis: str = "y", mode: str = "paper"
-) -> np.ndarray:
+def kinetic_features(joints: np.ndarray, fps: float = 60, up_axis: str = "y", mode: str = "paper") -> np.ndarray:
     """72 kinetic features of one motion, ordered (j0 horizontal KE, j0 vertical KE, j0 energy, j1 ...).
 
     joints: (T, 24, 3) positions in metres, T >= 2; ``up_axis="z"`` input is rotated to y-up first.

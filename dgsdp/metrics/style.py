@@ -44,9 +44,7 @@ class GenreClassifier:
         if arr.ndim != 2 or arr.shape[1] != self.mean.shape[0]:
             raise ValueError(f"features must have shape (N, {self.mean.shape[0]}); got {arr.shape}.")
         if not np.isfinite(arr).all():
-            raise MetricError(
-                "features contain NaN or infinite values; recompute the features of those dances."
-            )
+            raise MetricError("features contain NaN or infinite values; recompute the features of those dances.")
         return (arr - self.mean) / self.scale
 
     def fit(self, features: np.ndarray, labels: np.ndarray) -> GenreClassifier:
@@ -54,18 +52,12 @@ class GenreClassifier:
         x = np.asarray(features, dtype=np.float64)
         y = np.asarray(labels).reshape(-1)
         if x.ndim != 2 or x.shape[0] != y.shape[0]:
-            raise ValueError(
-                f"features must have shape (N, D) with N = len(labels) = {y.shape[0]}; got {x.shape}."
-            )
+            raise ValueError(f"features must have shape (N, D) with N = len(labels) = {y.shape[0]}; got {x.shape}.")
         if not np.isfinite(x).all():
-            raise MetricError(
-                "features contain NaN or infinite values; recompute the features of those dances."
-            )
+            raise MetricError("features contain NaN or infinite values; recompute the features of those dances.")
         self.classes, y_index = np.unique(y, return_inverse=True)
         if self.classes.size < 2:
-            raise MetricError(
-                f"the classifier needs at least 2 genres in the labels; got {self.classes.tolist()}."
-            )
+            raise MetricError(f"the classifier needs at least 2 genres in the labels; got {self.classes.tolist()}.")
         self.mean = x.mean(axis=0)
         std = x.std(axis=0)
         self.scale = np.where(std > 0, std, 1.0)  # constant features stay at 0 after centring
@@ -93,9 +85,7 @@ class GenreClassifier:
             return loss, np.concatenate([grad_w.ravel(), residual.sum(axis=0)])
 
         start = np.concatenate([self.weights.ravel(), self.bias])
-        result = minimize(
-            loss_and_grad, start, jac=True, method="L-BFGS-B", options={"maxiter": self.max_iter}
-        )
+        result = minimize(loss_and_grad, start, jac=True, method="L-BFGS-B", options={"maxiter": self.max_iter})
         self.weights = result.x[: d * k].reshape(d, k)
         self.bias = result.x[d * k :]
 
@@ -143,9 +133,7 @@ class GenreClassifier:
         """Rebuild a fitted classifier from :meth:`state` (or the ``np.load`` of its ``.npz``)."""
         missing = [key for key in _STATE_KEYS if key not in state]
         if missing:
-            raise MetricError(
-                f"genre classifier state lacks {missing}; save it with np.savez(path, **clf.state())."
-            )
+            raise MetricError(f"genre classifier state lacks {missing}; save it with np.savez(path, **clf.state()).")
         clf = cls(method=str(state["method"]))
         for key in _STATE_KEYS[1:]:
             setattr(clf, key, np.asarray(state[key]))

@@ -133,9 +133,7 @@ class DanceDenoiser(nn.Module):
         (False = condition dropped). Returns x0 prediction (B, T, 151)."""
         b, n, _ = x_t.shape
         if n > self.seq_len:
-            raise ValueError(
-                f"sequence of {n} frames is longer than the model's {self.seq_len}; use long-form"
-            )
+            raise ValueError(f"sequence of {n} frames is longer than the model's {self.seq_len}; use long-form")
         ones = torch.ones(b, dtype=torch.bool, device=x_t.device)
         keep_music = ones if keep_music is None else keep_music
         keep_style = ones if keep_style is None else keep_style
@@ -149,9 +147,7 @@ class DanceDenoiser(nn.Module):
             h_music = null
         else:
             if music.shape[:2] != (b, n) or music.shape[-1] != self.audio_dim:
-                raise ValueError(
-                    f"music features {tuple(music.shape)} do not match ({b}, {n}, {self.audio_dim})"
-                )
+                raise ValueError(f"music features {tuple(music.shape)} do not match ({b}, {n}, {self.audio_dim})")
             h_music = torch.where(keep_music[:, None, None], self.music_proj(music), null)
         s = self._style(style, keep_style, b)
         if self.style_concat_proj is not None:

@@ -64,9 +64,7 @@ class Attention(nn.Module):
 
 class FeedForward(nn.Sequential):
     def __init__(self, d_model: int, ff_dim: int, dropout: float) -> None:
-        super().__init__(
-            nn.Linear(d_model, ff_dim), nn.GELU(), nn.Dropout(dropout), nn.Linear(ff_dim, d_model)
-        )
+        super().__init__(nn.Linear(d_model, ff_dim), nn.GELU(), nn.Dropout(dropout), nn.Linear(ff_dim, d_model))
 
 
 class FiLM(nn.Module):
@@ -100,8 +98,6 @@ class EncoderLayer(nn.Module):
 def sinusoidal_embedding(t: torch.Tensor, dim: int) -> torch.Tensor:
     """Diffusion step t (B,) -> (B, dim) sinusoidal features."""
     half = dim // 2
-    freqs = torch.exp(
-        -math.log(10000.0) * torch.arange(half, device=t.device, dtype=torch.float32) / (half - 1)
-    )
+    freqs = torch.exp(-math.log(10000.0) * torch.arange(half, device=t.device, dtype=torch.float32) / (half - 1))
     args = t.float()[:, None] * freqs[None]
     return torch.cat((args.sin(), args.cos()), dim=-1)

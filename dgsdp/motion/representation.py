@@ -86,9 +86,7 @@ def smpl_to_pose(poses_axis_angle: torch.Tensor, trans_m: torch.Tensor, y_up: bo
     return pack_pose(foot_contacts(joints), trans_m, rotmats)
 
 
-def channels_for_joints(
-    joints: list[int | str] | tuple[int | str, ...], with_root_and_contacts: bool
-) -> list[int]:
+def channels_for_joints(joints: list[int | str] | tuple[int | str, ...], with_root_and_contacts: bool) -> list[int]:
     """Channels of the 151-d vector that hold the rotations of the given joints (by index or SMPL name),
     plus the root translation and foot-contact channels if asked (they belong with the lower body)."""
     channels: list[int] = []

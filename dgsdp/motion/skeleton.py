@@ -55,9 +55,7 @@ LOWER_BODY_JOINTS: tuple[int, ...] = (0, 1, 2, 4, 5, 7, 8, 10, 11)
 UPPER_BODY_JOINTS: tuple[int, ...] = tuple(j for j in range(NUM_JOINTS) if j not in LOWER_BODY_JOINTS)
 
 
-def rest_offsets(
-    dtype: torch.dtype = torch.float32, device: torch.device | str | None = None
-) -> torch.Tensor:
+def rest_offsets(dtype: torch.dtype = torch.float32, device: torch.device | str | None = None) -> torch.Tensor:
     """Rest offsets from each joint's parent, (24, 3) metres, y-up."""
     return torch.tensor(REST_OFFSETS_M, dtype=dtype, device=device)
 

@@ -58,9 +58,7 @@ class Condition:
 class Sampler:
     """Generates x0 (normalised) from noise with any denoiser ``fn(x_t, t, music, style, keep_music, keep_style)``."""
 
-    def __init__(
-        self, denoiser: torch.nn.Module, diffusion: GaussianDiffusion, *, style_guidance: bool
-    ) -> None:
+    def __init__(self, denoiser: torch.nn.Module, diffusion: GaussianDiffusion, *, style_guidance: bool) -> None:
         self.denoiser = denoiser
         self.diffusion = diffusion
         self.style_guidance = style_guidance
@@ -74,9 +72,7 @@ class Sampler:
         return [(False, True), (True, True)]
 
     @torch.no_grad()
-    def predict_x0(
-        self, x_t: torch.Tensor, t: torch.Tensor, cond: Condition, guidance: Guidance
-    ) -> torch.Tensor:
+    def predict_x0(self, x_t: torch.Tensor, t: torch.Tensor, cond: Condition, guidance: Guidance) -> torch.Tensor:
         passes = self._passes(cond, guidance)
         k = len(passes)
         b = x_t.shape[0]
@@ -145,9 +141,7 @@ class Sampler:
             elif method == "ddpm":
                 x = self.diffusion.ddpm_step(x, t, x0, generator=generator)
             else:
-                x = self.diffusion.ddim_step(
-                    x, t, torch.full_like(t, t_next), x0, eta=eta, generator=generator
-                )
+                x = self.diffusion.ddim_step(x, t, torch.full_like(t, t_next), x0, eta=eta, generator=generator)
             if mask is not None:
                 if t_next < 0:
                     target = known

@@ -44,9 +44,7 @@ class StyleBank:
                 f"{tuple(genre_index.shape)}. Delete the style cache folder to rebuild it."
             )
         if genre_index.numel() and (genre_index.min() < 0 or genre_index.max() >= n_genres):
-            raise DataError(
-                f"Style bank genre_index must lie in [0, {n_genres}); delete the style cache to rebuild."
-            )
+            raise DataError(f"Style bank genre_index must lie in [0, {n_genres}); delete the style cache to rebuild.")
         self.vectors = vectors
         self.genre_index = genre_index
         self.n_genres = int(n_genres)
@@ -78,9 +76,7 @@ class StyleBank:
                 raise ConfigError(f"Genre index out of range [0, {self.n_genres}): {genre_idx.tolist()}.")
             missing = genre_idx[self.counts[genre_idx] == 0]
             if missing.numel():
-                raise DataError(
-                    f"The style bank has no rows for genre index(es) {sorted(set(missing.tolist()))}."
-                )
+                raise DataError(f"The style bank has no rows for genre index(es) {sorted(set(missing.tolist()))}.")
         return genre_idx
 
     def sample(self, genre_idx: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -130,9 +126,7 @@ def load_prompts(path: str | os.PathLike, vocab: GenreVocab = AISTPP_GENRES) -> 
         if isinstance(texts, str):
             texts = [texts]
         if not isinstance(texts, list) or not all(isinstance(t, str) and t.strip() for t in texts):
-            raise DataError(
-                f"In style prompts file {path}: genre {key!r} must have a list of non-empty texts."
-            )
+            raise DataError(f"In style prompts file {path}: genre {key!r} must have a list of non-empty texts.")
         per_genre[g].extend(" ".join(t.split()) for t in texts)
     missing = [vocab.codes[g] for g, texts in enumerate(per_genre) if not texts]
     if missing:
@@ -165,9 +159,7 @@ class StyleEmbedder:
         self.prompts_file = Path(prompts_file) if prompts_file is not None else DEFAULT_PROMPTS_FILE
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
         if kind in ("genre", "prompt") and text_encoder is None:
-            raise ConfigError(
-                f"style kind {kind!r} needs a text encoder; set text_encoder (e.g. text_encoder=minilm)."
-            )
+            raise ConfigError(f"style kind {kind!r} needs a text encoder; set text_encoder (e.g. text_encoder=minilm).")
         self._encoder_cfg: dict[str, Any] | None = None
         self._encoder: TextEncoder | None = None
         if isinstance(text_encoder, TextEncoder):
@@ -248,9 +240,7 @@ class StyleEmbedder:
         key = stable_hash({"settings": settings, "texts": texts})
         vectors = cache.get_or_compute(key, compute)["vectors"]
         if vectors.shape != (len(texts), encoder.dim):
-            raise DataError(
-                f"Cached style embeddings in {cache.dir} have the wrong shape; delete that folder."
-            )
+            raise DataError(f"Cached style embeddings in {cache.dir} have the wrong shape; delete that folder.")
         return torch.from_numpy(vectors).float()
 
     def embed_genre(self, key: str | int) -> torch.Tensor:
@@ -261,9 +251,7 @@ class StyleEmbedder:
     def embed_text(self, text: str) -> torch.Tensor:
         """Style vector ``(dim,)`` of a free-text description (inference); loads the text encoder if needed."""
         if self.kind == "none":
-            raise ConfigError(
-                "This model was trained without style conditioning (style=none); drop the style text."
-            )
+            raise ConfigError("This model was trained without style conditioning (style=none); drop the style text.")
         if self.kind == "onehot":
             if text in self.vocab:
                 return self.embed_genre(text)

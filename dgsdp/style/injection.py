@@ -34,16 +34,12 @@ class StyleModulation(nn.Module):
     one per frame ``(B, T, style_dim)`` (style schedules that change over time).
     """
 
-    def __init__(
-        self, d_model: int, style_dim: int, variant: ModulationVariant = "official", eps: float = 1e-6
-    ):
+    def __init__(self, d_model: int, style_dim: int, variant: ModulationVariant = "official", eps: float = 1e-6):
         super().__init__()
         if variant not in ("official", "paper"):
             raise ValueError(f"Unknown style modulation variant {variant!r}; use 'official' or 'paper'.")
         if style_dim <= 0:
-            raise ValueError(
-                "Style modulation needs a style vector (style_dim > 0); use style=none without it."
-            )
+            raise ValueError("Style modulation needs a style vector (style_dim > 0); use style=none without it.")
         self.d_model = d_model
         self.style_dim = style_dim
         self.variant = variant
@@ -59,9 +55,7 @@ class StyleModulation(nn.Module):
                 f"Expected style (B, {self.style_dim}) or (B, T, {self.style_dim}), got {tuple(style.shape)}."
             )
         if style.ndim == 3 and style.shape[1] != x.shape[1]:
-            raise ValueError(
-                f"Per-frame style has {style.shape[1]} frames but the hidden state has {x.shape[1]}."
-            )
+            raise ValueError(f"Per-frame style has {style.shape[1]} frames but the hidden state has {x.shape[1]}.")
         scale = self.fc(style.to(x.dtype))  # (B, d) or (B, T, d)
         if scale.ndim == 2:
             scale = scale.unsqueeze(1)  # broadcast over frames
@@ -86,7 +80,5 @@ def concat_style(music: torch.Tensor, style: torch.Tensor) -> torch.Tensor:
     if style.ndim == 2:
         style = style.unsqueeze(1).expand(-1, music.shape[1], -1)
     if style.ndim != 3 or style.shape[:2] != music.shape[:2]:
-        raise ValueError(
-            f"Style {tuple(style.shape)} does not match music {tuple(music.shape)} in batch/frames."
-        )
+        raise ValueError(f"Style {tuple(style.shape)} does not match music {tuple(music.shape)} in batch/frames.")
     return torch.cat([music, style.to(music.dtype)], dim=-1)

@@ -64,9 +64,7 @@ class TextEncoder(ABC):
                 raise TypeError(f"encode() takes strings, got {type(t).__name__}.")
         if not texts:
             return torch.zeros(0, self.dim)
-        chunks = [
-            self._encode_batch(texts[i : i + self.batch_size]) for i in range(0, len(texts), self.batch_size)
-        ]
+        chunks = [self._encode_batch(texts[i : i + self.batch_size]) for i in range(0, len(texts), self.batch_size)]
         return torch.cat(chunks).detach().to("cpu", torch.float32)
 
 
@@ -284,11 +282,7 @@ class ClipTextEncoder(TextEncoder):
                     require_pretrained=True,
                 )
             except (RuntimeError, OSError, ValueError) as e:
-                source = (
-                    f"file {ckpt}"
-                    if ckpt is not None
-                    else f"tag {self.pretrained!r} (cache: {self.cache_dir})"
-                )
+                source = f"file {ckpt}" if ckpt is not None else f"tag {self.pretrained!r} (cache: {self.cache_dir})"
                 raise WeightsError(
                     f"Could not load CLIP {self.model_name} weights from {source}: {e}. {CLIP_WEIGHTS_HELP}"
                 ) from e

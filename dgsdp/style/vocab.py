@@ -44,9 +44,7 @@ class GenreVocab:
             self._names.append(name)
             for key in {_normalise(code), _normalise(name)}:
                 if key in self._lookup and self._lookup[key] != i:
-                    raise ConfigError(
-                        f"Genre key {key!r} is used by two genres; codes and names must be unique."
-                    )
+                    raise ConfigError(f"Genre key {key!r} is used by two genres; codes and names must be unique.")
                 self._lookup[key] = i
 
     @classmethod
@@ -54,15 +52,11 @@ class GenreVocab:
         """Read a yaml mapping ``code: name`` (order kept) or a list of ``[code, name]`` pairs."""
         path = Path(path)
         if not path.is_file():
-            raise DataError(
-                f"Genre vocabulary file {path} does not exist; give a yaml file of `code: name` lines."
-            )
+            raise DataError(f"Genre vocabulary file {path} does not exist; give a yaml file of `code: name` lines.")
         with open(path, encoding="utf-8") as f:
             data = yaml.safe_load(f)
         if not isinstance(data, Mapping | list):
-            raise DataError(
-                f"Genre vocabulary file {path} must hold a `code: name` mapping or a list of pairs."
-            )
+            raise DataError(f"Genre vocabulary file {path} must hold a `code: name` mapping or a list of pairs.")
         return cls(data)
 
     @property
@@ -109,9 +103,7 @@ class GenreVocab:
             raise ConfigError(f"Genre index {key} is out of range; known genres: {self.describe()}.")
         found = self._find(str(key))
         if found is None:
-            raise ConfigError(
-                f"Unknown genre {key!r}. Known genres (code or name, any case): {self.describe()}."
-            )
+            raise ConfigError(f"Unknown genre {key!r}. Known genres (code or name, any case): {self.describe()}.")
         return found
 
     def code(self, key: str | int) -> str:

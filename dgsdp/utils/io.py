@@ -104,9 +104,7 @@ class DiskCache:
     def save(self, key: str, arrays: Mapping[str, np.ndarray]) -> None:
         atomic_save_npz(self.path(key), arrays)
 
-    def get_or_compute(
-        self, key: str, compute: Callable[[], Mapping[str, np.ndarray]]
-    ) -> dict[str, np.ndarray]:
+    def get_or_compute(self, key: str, compute: Callable[[], Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
         found = self.load(key)
         if found is not None:
             self.hits += 1

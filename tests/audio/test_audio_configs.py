@@ -30,9 +30,7 @@ def test_librosa_config_matches_the_paper_settings():
     assert encoder.beat_tightness == 100.0
 
 
-@pytest.mark.parametrize(
-    ("name", "cls", "dim"), [("encodec", EncodecEncoder, 128), ("jukebox", JukeboxEncoder, 4800)]
-)
+@pytest.mark.parametrize(("name", "cls", "dim"), [("encodec", EncodecEncoder, 128), ("jukebox", JukeboxEncoder, 4800)])
 def test_model_configs_build_lazily(name, cls, dim, monkeypatch):
     monkeypatch.delenv("DGSDP_ENCODEC_DIR", raising=False)
     monkeypatch.delenv("DGSDP_JUKEBOX_DIR", raising=False)

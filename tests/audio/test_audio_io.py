@@ -12,9 +12,7 @@ from dgsdp.errors import AudioError
 
 
 def sine(freq_hz: float, seconds: float, rate_hz: int) -> np.ndarray:
-    return (0.5 * np.sin(2 * np.pi * freq_hz * np.arange(int(seconds * rate_hz)) / rate_hz)).astype(
-        np.float32
-    )
+    return (0.5 * np.sin(2 * np.pi * freq_hz * np.arange(int(seconds * rate_hz)) / rate_hz)).astype(np.float32)
 
 
 def dominant_hz(y: np.ndarray, rate_hz: int) -> float:

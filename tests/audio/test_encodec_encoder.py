@@ -13,9 +13,7 @@ from dgsdp.audio import EncodecEncoder, build_audio_encoder
 from dgsdp.audio.base import resample_frames
 from dgsdp.errors import WeightsError
 
-TINY = dict(
-    num_filters=4, num_residual_layers=1, hidden_size=16, codebook_size=32, codebook_dim=16, num_lstm_layers=1
-)
+TINY = dict(num_filters=4, num_residual_layers=1, hidden_size=16, codebook_size=32, codebook_dim=16, num_lstm_layers=1)
 
 
 def tiny_encoder(**kwargs) -> EncodecEncoder:
@@ -87,9 +85,7 @@ def test_settings_change_the_cache_namespace():
     assert EncodecEncoder().settings() != EncodecEncoder(chunk_seconds=10.0).settings()
 
 
-@pytest.mark.skipif(
-    not os.environ.get("DGSDP_ENCODEC_DIR"), reason="set DGSDP_ENCODEC_DIR to the weights folder"
-)
+@pytest.mark.skipif(not os.environ.get("DGSDP_ENCODEC_DIR"), reason="set DGSDP_ENCODEC_DIR to the weights folder")
 def test_real_weights():
     encoder = EncodecEncoder(local_dir=os.environ["DGSDP_ENCODEC_DIR"], device="cpu")
     t = np.arange(5 * 24000) / 24000

@@ -121,9 +121,7 @@ def test_extract_dataset_resumes(song_dir, tmp_path):
 
 
 def test_cli_fills_the_cache(song_dir, tmp_path, capsys):
-    assert (
-        extract_main(["--encoder", "librosa", "--wavs", str(song_dir), "--cache", str(tmp_path / "c")]) == 0
-    )
+    assert extract_main(["--encoder", "librosa", "--wavs", str(song_dir), "--cache", str(tmp_path / "c")]) == 0
     assert "3 encoded" in capsys.readouterr().out
     entries = list((tmp_path / "c").rglob("*.npz"))
     assert len(entries) == 3

@@ -94,9 +94,7 @@ def test_layer_truncation_and_state_selection():
     state = {f"module.prior.transformer._attn_mods.{i}.w": torch.zeros(1) for i in range(12)}
     state |= {"module.prior.x_out.weight": torch.zeros(1), "prior.x_emb.weight": torch.zeros(1)}
     kept = select_prior_state(state, layer=10)
-    assert sorted(kept) == sorted(
-        ["prior.x_emb.weight"] + [f"prior.transformer._attn_mods.{i}.w" for i in range(10)]
-    )
+    assert sorted(kept) == sorted(["prior.x_emb.weight"] + [f"prior.transformer._attn_mods.{i}.w" for i in range(10)])
 
 
 @pytest.mark.skipif(HAS_PACKAGE, reason="only meaningful without jukebox-infer")
@@ -151,9 +149,7 @@ def test_tiny_model_matches_the_package_forward(monkeypatch):
     torch.testing.assert_close(full._activations(tokens[:, :100]), ours[:100], rtol=1e-5, atol=1e-6)
     # truncation really stops early: block 2's output differs from block 3's
     two = JukeboxEncoder.from_hparams(TINY_VQVAE, small, layer=2, device="cpu", fp16=False)
-    two._prior.load_state_dict(
-        {k: v for k, v in prior.state_dict().items() if ".2." not in k or "_attn_mods" not in k}
-    )
+    two._prior.load_state_dict({k: v for k, v in prior.state_dict().items() if ".2." not in k or "_attn_mods" not in k})
     assert (two._activations(tokens) - ours).abs().max() > 1e-3
 
 

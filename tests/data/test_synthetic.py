@@ -216,9 +216,7 @@ def test_motion_beats_fall_on_music_beats(manifest: dict, joints: dict[str, np.n
 
 def test_genres_are_separable(manifest: dict, joints: dict[str, np.ndarray]) -> None:
     names = sorted(joints)
-    features = np.stack(
-        [np.concatenate([kinetic_features(joints[n]), geometric_features(joints[n])]) for n in names]
-    )
+    features = np.stack([np.concatenate([kinetic_features(joints[n]), geometric_features(joints[n])]) for n in names])
     genres = np.array([manifest["sequences"][n]["genre"] for n in names])
     is_test = np.array([manifest["sequences"][n]["split"] == "test" for n in names])
     classifier = GenreClassifier(method="centroid").fit(features[~is_test], genres[~is_test])
@@ -231,9 +229,7 @@ def test_genres_are_separable(manifest: dict, joints: dict[str, np.ndarray]) -> 
         return float(np.mean([fn(joints[n]) for n in names if manifest["sequences"][n]["genre"] == genre]))
 
     pelvis = {g: mean_of(g, lambda j: j[:, 0, 1].mean()) for g in GENRE_CODES}
-    wrists_above_pelvis = {
-        g: mean_of(g, lambda j: (j[:, 20:22, 1] - j[:, :1, 1]).mean()) for g in GENRE_CODES
-    }
+    wrists_above_pelvis = {g: mean_of(g, lambda j: (j[:, 20:22, 1] - j[:, :1, 1]).mean()) for g in GENRE_CODES}
     assert min(pelvis, key=pelvis.get) == "BR"
     assert max(wrists_above_pelvis, key=wrists_above_pelvis.get) in ("WA", "JS")
 

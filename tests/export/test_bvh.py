@@ -136,9 +136,7 @@ def test_euler_hand_worked_and_gimbal():
     rng = np.random.default_rng(0)
     mats = np.stack([gimbal_rotation(rng, s, e) for s in (-1, 1) for e in (0.0, 1e-9, 1e-6, -1e-3)] * 5)
     z, x, y = np.degrees(matrix_to_euler_zxy(mats)).T
-    rebuilt = np.stack(
-        [elementary("Z", a) @ elementary("X", b) @ elementary("Y", c) for a, b, c in zip(z, x, y)]
-    )
+    rebuilt = np.stack([elementary("Z", a) @ elementary("X", b) @ elementary("Y", c) for a, b, c in zip(z, x, y)])
     assert np.abs(rebuilt - mats).max() < 1e-9
 
 

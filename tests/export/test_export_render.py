@@ -129,9 +129,7 @@ needs_ffmpeg = pytest.mark.skipif(
 @needs_ffmpeg
 def test_mp4_with_song(tmp_path):
     song = sine_wav(tmp_path / "song.wav", 2.0)
-    out = render_video(
-        tmp_path / "dance.mp4", dancing(60), fps=30, audio_path=song, title="test", size=(96, 96)
-    )
+    out = render_video(tmp_path / "dance.mp4", dancing(60), fps=30, audio_path=song, title="test", size=(96, 96))
     assert out == tmp_path / "dance.mp4" and out.is_file()
     streams = {s["codec_type"]: s for s in ffprobe_streams(out)}
     assert streams["video"]["codec_name"] == "h264" and streams["video"]["pix_fmt"] == "yuv420p"

@@ -56,12 +56,8 @@ def test_music_beats_past_the_speed_curve_are_ignored():
 
 def test_beat_alignment_from_beats_by_hand():
     motion, music = [10, 40], [10, 43, 70]
-    assert beat_alignment_from_beats(motion, music) == pytest.approx(
-        (1 + math.exp(-9 / 18) + math.exp(-900 / 18)) / 3
-    )
-    assert beat_alignment_from_beats(motion, music, variant="fact") == pytest.approx(
-        (1 + math.exp(-9 / 18)) / 2
-    )
+    assert beat_alignment_from_beats(motion, music) == pytest.approx((1 + math.exp(-9 / 18) + math.exp(-900 / 18)) / 3)
+    assert beat_alignment_from_beats(motion, music, variant="fact") == pytest.approx((1 + math.exp(-9 / 18)) / 2)
     assert beat_alignment_from_beats(motion, music, fps=30) == pytest.approx(
         (1 + math.exp(-9 / 4.5) + math.exp(-900 / 4.5)) / 3
     )

@@ -28,9 +28,7 @@ def test_separable_genres_are_recognised(method):
 
 def test_nearest_centroid_by_hand():
     # 1-d: mean 5, std 5 -> standardised centroids -1 (a) and +1 (b); 4 -> -0.2 (a), 6 -> +0.2 (b)
-    clf = GenreClassifier(method="centroid").fit(
-        np.array([[0.0], [0.0], [10.0], [10.0]]), ["a", "a", "b", "b"]
-    )
+    clf = GenreClassifier(method="centroid").fit(np.array([[0.0], [0.0], [10.0], [10.0]]), ["a", "a", "b", "b"])
     np.testing.assert_array_equal(clf.predict(np.array([[4.0], [6.0], [-50.0]])), ["a", "b", "a"])
     assert clf.accuracy(np.array([[4.0], [6.0]]), ["a", "a"]) == 0.5
 

@@ -134,9 +134,7 @@ def test_unknown_genre_and_bad_settings(counting_encoder) -> None:
 
 def test_custom_vocab_and_prompts(tmp_path, counting_encoder) -> None:
     prompts = tmp_path / "prompts.yaml"
-    prompts.write_text(
-        "SA: [Quick hips and turns., Close partner spins.]\nTA: [Slow walks and sharp kicks.]\n"
-    )
+    prompts.write_text("SA: [Quick hips and turns., Close partner spins.]\nTA: [Slow walks and sharp kicks.]\n")
     embedder = StyleEmbedder(
         "prompt",
         text_encoder=counting_encoder,
