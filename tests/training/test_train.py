@@ -5,6 +5,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import yaml
@@ -207,3 +208,14 @@ def test_it_learns_and_music_helps(tmp_path):
     print(val_loss)
     assert val_loss["librosa"] < 0.5 * val_loss["initial"]
     assert val_loss["librosa"] < val_loss["none"]
+
+
+def test_sample_render_callback_writes_samples(tmp_path, tiny_synthetic):
+    _, result = run(
+        tmp_path, tiny_synthetic, "+trainer.limit_train_batches=2", "callbacks.samples.every_n_epochs=1",
+        "callbacks.samples.num_samples=1", "callbacks.samples.sampling_steps=2",
+    )  # fmt: skip
+    folder = tmp_path / "samples" / "epoch0000"
+    joints = np.load(folder / "sample0.npy")
+    assert joints.shape == (150, 24, 3) and np.isfinite(joints).all()
+    assert any(folder.glob("sample0.*4")) or any(folder.glob("sample0.gif"))  # the rendered video
