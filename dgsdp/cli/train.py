@@ -31,11 +31,10 @@ def group_choices() -> dict[str, str]:
     return {g: str(choices.get(g)) for g in GROUP_CHOICES if g in choices}
 
 
-def _resume_logger_ids(cfg: DictConfig) -> None:
+def _resume_logger_ids(cfg: DictConfig, ckpt: dict[str, Any]) -> None:
     """On resume, continue the same wandb run (its id is stored in the checkpoint)."""
-    if not cfg.get("ckpt_path") or "wandb" not in (cfg.get("logger") or {}):
+    if "wandb" not in (cfg.get("logger") or {}):
         return
-    ckpt = torch.load(cfg.ckpt_path, map_location="cpu", weights_only=True)
     run_id = ckpt.get("logger_run_ids", {}).get("WandbLogger")
     if run_id:
         OmegaConf.set_struct(cfg, False)
@@ -68,7 +67,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             raise ConfigError(f"ckpt_path {ckpt_path} does not exist; give the path of a checkpoint to resume from")
         saved = torch.load(ckpt_path, map_location="cpu", weights_only=True)
         check_compatible(saved.get("hyper_parameters", {}), plain(hparams), str(ckpt_path))
-        _resume_logger_ids(cfg)
+        _resume_logger_ids(cfg, saved)
 
     callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values() if c and "_target_" in c]
     loggers = [instantiate(lg) for lg in (cfg.get("logger") or {}).values() if lg and "_target_" in lg]

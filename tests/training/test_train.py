@@ -154,6 +154,17 @@ def test_wandb_offline_run_holds_config_and_group_choices(tmp_path, tiny_synthet
     assert b'"style_injection":"modulation"' in compact and b'"audio":"librosa"' in compact and b"d_model" in log
 
 
+def test_resumed_run_continues_its_wandb_run(tmp_path, tiny_synthetic, monkeypatch):
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    extra = ("logger=wandb", "trainer.limit_val_batches=0", "trainer.max_epochs=-1")
+    _, first = run(tmp_path / "a", tiny_synthetic, "trainer.max_steps=1", *extra)
+    _, resumed = run(tmp_path / "b", tiny_synthetic, "trainer.max_steps=2", f"ckpt_path={first['checkpoint']}", *extra)
+    run_id = _state(first["checkpoint"])["logger_run_ids"]["WandbLogger"]
+    assert resumed["global_step"] == 2
+    assert next((tmp_path / "b" / "wandb").glob("offline-run-*")).name.endswith(run_id)
+    assert _state(resumed["checkpoint"])["logger_run_ids"]["WandbLogger"] == run_id
+
+
 def test_two_job_multirun_creates_two_wandb_runs(tmp_path, tiny_synthetic):
     sweep = tmp_path / "sweep"
     args = [
