@@ -5,11 +5,11 @@ import pickle
 import numpy as np
 import pytest
 import torch
+from motion_helpers import random_motion
 
 from dgsdp.editing import TASKS, build_mask, keyframe_indices, load_motion_file, place_known
 from dgsdp.errors import ConfigError, DataError
 from dgsdp.export import save_aistpp_pkl
-from dgsdp.motion import axis_angle_to_matrix, pack_pose
 from dgsdp.sampling import Guidance
 
 # Written out by hand from the SMPL joint list (motion.md), not taken from the motion core.
@@ -101,14 +101,6 @@ def test_place_known_layouts():
         place_known("upper_body", motion, build_mask("upper_body", 50))
     with pytest.raises(ConfigError, match="one frame per keyframe"):
         place_known("keyframes", motion[:3], build_mask("keyframes", 50, keyframes=[1, 2]))
-
-
-def random_motion(n: int, seed: int = 0) -> torch.Tensor:
-    g = torch.Generator().manual_seed(seed)
-    rot = axis_angle_to_matrix(0.5 * torch.randn(n, 24, 3, generator=g, dtype=torch.float64))
-    trans = torch.randn(n, 3, generator=g, dtype=torch.float64).cumsum(0) * 0.01
-    contacts = (torch.rand(n, 4, generator=g) > 0.5).double()
-    return pack_pose(contacts, trans, rot).float()
 
 
 def test_motion_files(tmp_path):
