@@ -13,7 +13,7 @@ from dgsdp.audio import AudioEncoder
 from dgsdp.errors import ConfigError
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
-CONFIG_DIR = PROJECT_ROOT / "conf"
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "conf"
 
 if not OmegaConf.has_resolver("dgsdp_root"):
     OmegaConf.register_new_resolver("dgsdp_root", lambda: str(PROJECT_ROOT))

@@ -86,12 +86,20 @@ class GaussianDiffusion(nn.Module):
         return x0.clamp(-1, 1) if self.clip_x0 else x0
 
     def ddpm_step(
-        self, x_t: torch.Tensor, t: torch.Tensor, x0: torch.Tensor, generator: torch.Generator | None = None
+        self,
+        x_t: torch.Tensor,
+        t: torch.Tensor,
+        x0: torch.Tensor,
+        generator: torch.Generator | None = None,
+        noise: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """One ancestral step x_t -> x_{t-1} from the posterior q(x_{t-1} | x_t, x0); no noise at t = 0."""
+        """One ancestral step x_t -> x_{t-1} from the posterior q(x_{t-1} | x_t, x0); no noise at t = 0.
+
+        ``noise`` (like x_t) is drawn from ``generator`` when not given."""
         nd = x_t.ndim
         mean = self._at(self.posterior_c0, t, nd) * x0 + self._at(self.posterior_ct, t, nd) * x_t
-        noise = torch.randn(x_t.shape, device=x_t.device, dtype=x_t.dtype, generator=generator)
+        if noise is None:
+            noise = torch.randn(x_t.shape, device=x_t.device, dtype=x_t.dtype, generator=generator)
         nonzero = (t > 0).float().view(-1, *([1] * (nd - 1)))
         return mean + nonzero * (0.5 * self._at(self.posterior_log_var, t, nd)).exp() * noise
 
@@ -103,8 +111,10 @@ class GaussianDiffusion(nn.Module):
         x0: torch.Tensor,
         eta: float = 1.0,
         generator: torch.Generator | None = None,
+        noise: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """One DDIM step x_t -> x_{t_prev} (t_prev < 0 means: return x0)."""
+        """One DDIM step x_t -> x_{t_prev} (t_prev < 0 means: return x0); ``noise`` drawn from ``generator`` when
+        not given."""
         nd = x_t.ndim
         eps = self.predict_noise(x_t, t, x0)
         final = t_prev < 0
@@ -112,7 +122,8 @@ class GaussianDiffusion(nn.Module):
         ab_prev = self._at(self.alpha_bar, t_prev.clamp(min=0), nd)
         ab_prev = torch.where(final.view(-1, *([1] * (nd - 1))), torch.ones_like(ab_prev), ab_prev)
         sigma = eta * ((1 - ab_prev) / (1 - ab) * (1 - ab / ab_prev)).clamp(min=0).sqrt()
-        noise = torch.randn(x_t.shape, device=x_t.device, dtype=x_t.dtype, generator=generator)
+        if noise is None:
+            noise = torch.randn(x_t.shape, device=x_t.device, dtype=x_t.dtype, generator=generator)
         direction = (1 - ab_prev - sigma**2).clamp(min=0).sqrt() * eps
         return ab_prev.sqrt() * x0 + direction + sigma * noise
 

@@ -56,7 +56,7 @@ from dgsdp.sampling import Guidance
 
 log = logging.getLogger(__name__)
 
-LIBROSA_CONFIG = Path(__file__).resolve().parents[2] / "conf" / "audio" / "librosa.yaml"
+LIBROSA_CONFIG = Path(__file__).resolve().parents[1] / "conf" / "audio" / "librosa.yaml"
 ALL_SPLITS = ("train", "val", "test")
 
 

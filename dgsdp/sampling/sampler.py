@@ -11,13 +11,14 @@ With all weights 1 a single conditional pass is run.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
 from tqdm.auto import tqdm
 
 from dgsdp.diffusion import GaussianDiffusion
+from dgsdp.sampling.noise import Noise
 
 StepCallback = Callable[[torch.Tensor, int], torch.Tensor]
 
@@ -113,11 +114,14 @@ class Sampler:
         mask: torch.Tensor | None = None,
         known: torch.Tensor | None = None,
         step_callback: StepCallback | None = None,
-        generator: torch.Generator | None = None,
+        generator: torch.Generator | Sequence[torch.Generator] | Noise | None = None,
         device: torch.device | str = "cpu",
         progress: bool = False,
     ) -> torch.Tensor:
         """Sample x0 of ``shape`` (B, T, 151), normalised.
+
+        generator: one generator for the batch, one per group of rows (see :class:`Noise`), or a Noise; every
+        Gaussian draw of the sampler comes from it.
 
         mask (B or 1, T, 151) with 1 where ``known`` (normalised, same shape as the output) is given: after every
         step the known region is replaced by ``known`` noised to the new step, and by ``known`` itself at the end.
@@ -125,7 +129,8 @@ class Sampler:
         """
         guidance = guidance or Guidance()
         ts = self.timesteps(method, steps)
-        x = torch.randn(shape, device=device, generator=generator)
+        noise = generator if isinstance(generator, Noise) else Noise(generator)
+        x = noise.randn(shape, device=device)
         b = shape[0]
         if mask is not None:
             if known is None:
@@ -139,15 +144,17 @@ class Sampler:
             if t_next < 0:
                 x = x0
             elif method == "ddpm":
-                x = self.diffusion.ddpm_step(x, t, x0, generator=generator)
+                x = self.diffusion.ddpm_step(x, t, x0, noise=noise.randn(x.shape, device=device, dtype=x.dtype))
             else:
-                x = self.diffusion.ddim_step(x, t, torch.full_like(t, t_next), x0, eta=eta, generator=generator)
+                t_prev = torch.full_like(t, t_next)
+                step_noise = noise.randn(x.shape, device=device, dtype=x.dtype)
+                x = self.diffusion.ddim_step(x, t, t_prev, x0, eta=eta, noise=step_noise)
             if mask is not None:
                 if t_next < 0:
                     target = known
                 else:
-                    noise = torch.randn(x.shape, device=device, dtype=x.dtype, generator=generator)
-                    target = self.diffusion.q_sample(known, torch.full_like(t, t_next), noise)
+                    known_noise = noise.randn(x.shape, device=device, dtype=x.dtype)
+                    target = self.diffusion.q_sample(known, torch.full_like(t, t_next), known_noise)
                 x = mask * target + (1 - mask) * x
             if step_callback is not None:
                 x = step_callback(x, t_next)

@@ -10,7 +10,7 @@ from hydra.utils import instantiate
 
 from dgsdp.audio import AUDIO_ENCODERS, EncodecEncoder, JukeboxEncoder, LibrosaEncoder
 
-AUDIO_CONF = Path(__file__).resolve().parents[2] / "conf" / "audio"
+AUDIO_CONF = Path(__file__).resolve().parents[2] / "dgsdp" / "conf" / "audio"
 
 
 def build(name: str, overrides: list[str] | None = None):
