@@ -19,3 +19,8 @@ class WeightsError(DgsdpError):
 
 class ConfigError(DgsdpError):
     """A configuration value is invalid or inconsistent with a checkpoint."""
+
+
+class CheckpointError(ConfigError):
+    """A checkpoint cannot be used: unreadable, not ours, from another configuration, or asking to build
+    something that is not one of the project's own classes."""

@@ -40,7 +40,6 @@ def main(argv: list[str] | None = None) -> int:
         if checkpoint is None:
             raise DgsdpError(f"training wrote no checkpoint in {result['checkpoint_dir']}")
 
-        from dgsdp.cli.generate import compose_config as compose_generate
         from dgsdp.cli.generate import generate, print_report
         from dgsdp.data.aistpp import parse_name, read_split
 
@@ -51,7 +50,8 @@ def main(argv: list[str] | None = None) -> int:
         failed = False
         for style in (parsed.genre, FREE_TEXT_STYLE):
             tag = "genre" if style == parsed.genre else "free_text"
-            gen_cfg = compose_generate(
+            gen_cfg = compose_config(
+                "generate",
                 [
                     f"checkpoint={checkpoint}",
                     f"music={song}",
@@ -59,8 +59,8 @@ def main(argv: list[str] | None = None) -> int:
                     f"output_dir={out / 'dances' / tag}",
                     f"paths.cache_dir={cfg.paths.cache_dir}",
                     "device=cpu",
-                    "guidance.music=1.0",
-                ]
+                    "sampling.guidance.music=1.0",
+                ],
             )
             report = generate(gen_cfg)
             print_report(report)

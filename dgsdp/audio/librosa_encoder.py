@@ -14,6 +14,7 @@ import numpy as np
 
 from dgsdp.audio.base import AudioEncoder
 from dgsdp.audio.tempo import tempo_from_music_id
+from dgsdp.registry import register
 
 ENVELOPE_COLUMN = 0
 MFCC_COLUMNS = slice(1, 21)
@@ -22,6 +23,7 @@ PEAK_COLUMN = 33
 BEAT_COLUMN = 34
 
 
+@register("audio", "dgsdp.audio.LibrosaEncoder")
 class LibrosaEncoder(AudioEncoder):
     """35-d librosa features; ``start_bpm`` for the beat tracker comes from the AIST++ music id when known."""
 

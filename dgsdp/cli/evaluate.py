@@ -7,55 +7,70 @@ Also runs after training in the same job when the training config sets ``evaluat
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import hydra
-import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from dgsdp.cli.config import CONFIG_DIR, compose_config
-from dgsdp.errors import ConfigError, DgsdpError
+from dgsdp.cli.train import run_main
+from dgsdp.errors import ConfigError
 from dgsdp.evaluation.protocols import ProtocolSpec
 from dgsdp.evaluation.results import log_results, write_results
-from dgsdp.evaluation.runner import Evaluator, SamplingSettings
+from dgsdp.evaluation.runner import Evaluator
+from dgsdp.generation.pipeline import DanceGenerator
+from dgsdp.sampling import SamplingSettings
+from dgsdp.training.module import load_checkpoint, read_checkpoint
+from dgsdp.training.spec import RunSpec
 from dgsdp.utils.device import resolve_device
 
 log = logging.getLogger(__name__)
 EVALUATION_DIR = "evaluation"
 
 
-def _data_location(cfg: DictConfig, ckpt_config: dict[str, Any]) -> tuple[Path, Path]:
-    """Dataset root and feature cache: the config's ``data.*`` when set, else the checkpoint's training data."""
-    data = ckpt_config.get("data") or {}
-    root = cfg.data.get("root") or data.get("root")
-    cache = cfg.data.get("cache_dir") or data.get("cache_dir") or (ckpt_config.get("paths") or {}).get("cache_dir")
-    if not root or not cache:
-        raise ConfigError(
-            "the checkpoint's config does not name its dataset; give data.root=<AIST++ folder> and "
-            "data.cache_dir=<feature cache folder>"
-        )
-    root = Path(str(root)).expanduser()
-    if not (root / "motions").is_dir() and data.get("synthetic") and not cfg.data.get("root"):
+def _data_location(cfg: DictConfig, spec: RunSpec) -> tuple[Path, Path]:
+    """Dataset root and feature cache. The root is ``data.root`` when given, else the one the checkpoint was
+    trained on (only read). The cache is ``data.cache_dir``, else this run's ``paths.cache_dir``: where to write
+    is decided here, never by the checkpoint. A checkpoint trained on the synthetic dataset whose folder is not
+    there gets that dataset regenerated under this run's ``paths.data_dir``."""
+    data = spec.record.get("data") or {}
+    cache = Path(str(cfg.data.get("cache_dir") or cfg.paths.cache_dir)).expanduser()
+    if cfg.data.get("root"):
+        return Path(str(cfg.data.root)).expanduser(), cache
+    root = data.get("root")
+    if root and (Path(str(root)).expanduser() / "motions").is_dir():
+        return Path(str(root)).expanduser(), cache
+    synthetic = data.get("synthetic")
+    if isinstance(synthetic, dict):
+        import inspect
+
         from dgsdp.data.synthetic import generate_synthetic_aistpp
 
-        log.info("regenerating the checkpoint's synthetic dataset in %s", root)
-        generate_synthetic_aistpp(root, **data["synthetic"])
-    return root, Path(str(cache)).expanduser()
+        params = inspect.signature(generate_synthetic_aistpp).parameters
+        # stored settings are data: only the generator's own numeric parameters are taken
+        settings = {k: v for k, v in synthetic.items() if k in params and type(v) in (int, float)}
+        local = Path(str(cfg.paths.data_dir)).expanduser() / "synthetic"
+        if not (local / "motions").is_dir():
+            log.info("regenerating the checkpoint's synthetic dataset in %s", local)
+            generate_synthetic_aistpp(local, **settings)
+        return local, cache
+    raise ConfigError(
+        f"the dataset the checkpoint was trained on ({root or 'not recorded'}) is not here; give "
+        "data.root=<AIST++-layout folder>"
+    )
 
 
-def run_info(model: Any) -> dict[str, Any]:
+def run_info(spec: RunSpec) -> dict[str, Any]:
     """Which training run a checkpoint comes from (for reports that group runs by config and seed)."""
-    config = model.hparams.get("config") or {}
-    groups = dict(model.hparams.get("groups") or {})
+    config = spec.record
     return {
         "run_name": config.get("run_name"),
         "sweep_name": config.get("sweep_name"),
-        "seed": config.get("seed"),
-        "experiment": groups.get("experiment"),
-        "groups": groups,
+        "seed": spec.seed,
+        "experiment": spec.groups.get("experiment"),
+        "groups": dict(spec.groups),
         "run_dir": (config.get("paths") or {}).get("output_dir"),
         "wandb_project": ((config.get("logger") or {}).get("wandb") or {}).get("project"),
     }
@@ -63,23 +78,20 @@ def run_info(model: Any) -> dict[str, Any]:
 
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
     """Evaluate ``cfg.checkpoint`` under ``cfg.protocol``; write and log the results. Returns them and the paths."""
-    from dgsdp.training.module import load_checkpoint
-
     if not cfg.get("checkpoint"):
         raise ConfigError("give checkpoint=<path of a .ckpt written by train.py>")
-    model = load_checkpoint(str(cfg.checkpoint))
-    ckpt_config = dict(model.hparams.get("config") or {})
-    root, cache = _data_location(cfg, ckpt_config)
     spec = ProtocolSpec.from_config(OmegaConf.to_container(cfg.protocol, resolve=True))
-    sampling = SamplingSettings(**OmegaConf.to_container(cfg.sampling, resolve=True))
+    sampling = SamplingSettings.from_config(cfg.sampling)
+    model = load_checkpoint(str(cfg.checkpoint))
+    root, cache = _data_location(cfg, model.spec)
+    generator = DanceGenerator(model, cache_dir=cache, device=resolve_device(str(cfg.device)))
     evaluator = Evaluator(
-        model, spec, data_root=root, cache_dir=cache, sampling=sampling, metrics_mode=cfg.metrics.mode,
-        classifier_method=cfg.metrics.classifier, seed=int(cfg.seed), device=resolve_device(cfg.device),
-        progress=bool(cfg.progress),
+        generator, spec, data_root=root, cache_dir=cache, sampling=sampling, metrics_mode=cfg.metrics.mode,
+        classifier_method=cfg.metrics.classifier, seed=int(cfg.seed), progress=bool(cfg.progress),
     )  # fmt: skip
     results = evaluator.run()
     results["checkpoint"] = str(Path(str(cfg.checkpoint)).expanduser().resolve())
-    results["run"] = run_info(model)
+    results["run"] = run_info(model.spec)
     results["settings"] = {
         "protocol": OmegaConf.to_container(cfg.protocol, resolve=True),
         "sampling": OmegaConf.to_container(cfg.sampling, resolve=True),
@@ -102,25 +114,6 @@ def _quote(value: Any) -> str:
     return f"'{text}'"
 
 
-def compose_evaluate_config(overrides: Sequence[str], output_dir: str | Path) -> DictConfig:
-    """Compose ``conf/evaluate.yaml`` with ``overrides``; safe to call inside a running Hydra job (its global
-    state is restored afterwards)."""
-    from hydra.core.global_hydra import GlobalHydra
-    from hydra.core.hydra_config import HydraConfig
-
-    saved_hydra = GlobalHydra.instance().hydra if GlobalHydra.instance().is_initialized() else None
-    saved_cfg = HydraConfig.instance().cfg
-    try:
-        cfg = compose_config("evaluate", list(overrides), output_dir=output_dir)
-        OmegaConf.resolve(cfg)
-        return cfg
-    finally:
-        GlobalHydra.instance().clear()
-        if saved_hydra is not None:
-            GlobalHydra.instance().initialize(saved_hydra)
-        HydraConfig.instance().cfg = saved_cfg
-
-
 def evaluate_after_training(train_cfg: DictConfig, checkpoint: str, groups: dict[str, str]) -> dict[str, str]:
     """Run the protocols named by ``train_cfg.evaluate`` (a name or a list) on the final checkpoint.
 
@@ -140,25 +133,21 @@ def evaluate_after_training(train_cfg: DictConfig, checkpoint: str, groups: dict
     if logger:
         base.append(f"logger={logger}")
     if "wandb" in (train_cfg.get("logger") or {}):
-        ckpt = torch.load(checkpoint, map_location="cpu", weights_only=True)
-        run_id = ckpt.get("logger_run_ids", {}).get("WandbLogger")
+        ckpt = read_checkpoint(checkpoint)
+        run_id = (ckpt.get("logger_run_ids") or {}).get("WandbLogger")
         if run_id:
             base += [f"+logger.wandb.id={_quote(run_id)}", "+logger.wandb.resume=allow"]
     out: dict[str, str] = {}
     for name in names:
         out_dir = Path(train_cfg.paths.output_dir) / EVALUATION_DIR / str(name)
-        cfg = compose_evaluate_config([*base, f"protocol={name}", *extra], out_dir)
+        cfg = compose_config("evaluate", [*base, f"protocol={name}", *extra], output_dir=out_dir)
         out[str(name)] = str(evaluate(cfg)["paths"]["json"])
     return out
 
 
 @hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="evaluate")
 def main(cfg: DictConfig) -> None:
-    try:
-        result = evaluate(cfg)
-    except DgsdpError as e:
-        log.error("%s", e)
-        raise SystemExit(f"error: {e}") from None
+    result = run_main(evaluate, cfg)
     print(result["paths"]["markdown"].read_text())
     print(f"results written: {result['paths']['json']}")
 

@@ -7,23 +7,24 @@ reported at the end while the other songs are still written. The exit code is no
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import hydra
-from hydra import compose, initialize
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
-from dgsdp.cli.config import CONFIG_DIR
+from dgsdp.cli.config import CONFIG_DIR, as_list
+from dgsdp.cli.train import run_main
 from dgsdp.editing import check_task, load_motion_file
 from dgsdp.errors import ConfigError, DgsdpError
-from dgsdp.generation.pipeline import DanceGenerator, EditSettings, SamplingSettings, find_songs, write_motion
-from dgsdp.sampling import Guidance
+from dgsdp.generation.pipeline import DanceGenerator, EditSettings, find_songs, write_motion
+from dgsdp.sampling import SamplingSettings
 
 log = logging.getLogger(__name__)
 CONFIG_FILE = CONFIG_DIR / "generate.yaml"
@@ -33,23 +34,29 @@ CONFIG_FILE = CONFIG_DIR / "generate.yaml"
 CONFIG_NAME = "dgsdp_generate"
 
 
-def register_configs() -> None:
-    """Store conf/generate.yaml, with its defaults (``group: option``) merged in, in Hydra's config store."""
+@contextlib.contextmanager
+def generate_configs() -> Iterator[None]:
+    """While inside: conf/generate.yaml and every option of the groups it uses (paths, hydra, sampling) are in
+    Hydra's config store, generate's only search path (so that the training groups, style among them, stay out
+    of it and ``style=krump`` is a plain value). Removed afterwards, so that they do not shadow the same files
+    when the train or evaluate configs are composed in the same process."""
+    store = ConfigStore.instance()
     node = OmegaConf.load(CONFIG_FILE)
-    defaults = node.pop("defaults", [])
-    for entry in defaults:
+    added: list[tuple[str | None, str]] = []
+    for entry in node.get("defaults", []):
         if isinstance(entry, str):  # _self_
             continue
-        for group, option in entry.items():
-            node[group] = OmegaConf.load(CONFIG_DIR / group / f"{option}.yaml")
-    ConfigStore.instance().store(name=CONFIG_NAME, node=node)
-
-
-def compose_config(overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:
-    """The generate config with command-line style overrides, for scripts and tests (no Hydra run dir)."""
-    register_configs()
-    with initialize(version_base="1.3", config_path=None):
-        return compose(CONFIG_NAME, overrides=list(overrides))
+        for group in entry:
+            for option in (CONFIG_DIR / group).glob("*.yaml"):
+                store.store(group=group, name=option.stem, node=OmegaConf.load(option))
+                added.append((group, f"{option.stem}.yaml"))
+    store.store(name=CONFIG_NAME, node=node)
+    added.append((None, f"{CONFIG_NAME}.yaml"))
+    try:
+        yield
+    finally:
+        for group, name in added:
+            (store.repo.get(group, {}) if group else store.repo).pop(name, None)
 
 
 @dataclass
@@ -62,37 +69,6 @@ class GenerationReport:
     @property
     def ok(self) -> bool:
         return not self.errors
-
-
-def _list(value: Any) -> list[Any] | None:
-    if value is None:
-        return None
-    if isinstance(value, str | int | float):
-        return [value]
-    return list(OmegaConf.to_container(value) if OmegaConf.is_config(value) else value)
-
-
-def sampling_settings(cfg: DictConfig) -> SamplingSettings:
-    method = str(cfg.sampler).lower()
-    if method not in ("ddim", "ddpm"):
-        raise ConfigError(f"sampler={cfg.sampler!r} is not a sampler; use sampler=ddim or sampler=ddpm")
-    if int(cfg.steps) < 1:
-        raise ConfigError(f"steps must be at least 1, got {cfg.steps}")
-    return SamplingSettings(
-        method=method,
-        steps=int(cfg.steps),
-        eta=float(cfg.eta),
-        guidance=Guidance(
-            music_weight=float(cfg.guidance.music),
-            style_weight=float(cfg.guidance.style),
-            edit_cap_below_t=int(cfg.guidance.edit_cap_below_t),
-        ),
-        longform_ramp_fraction=float(cfg.guidance.longform_ramp_fraction),
-        window_frames=int(cfg.longform.window_frames),
-        stride_frames=int(cfg.longform.stride_frames),
-        chunk_size=int(cfg.longform.chunk_size),
-        bf16=bool(cfg.bf16),
-    )
 
 
 def edit_settings(cfg: DictConfig, fps: int) -> EditSettings:
@@ -114,10 +90,10 @@ def edit_settings(cfg: DictConfig, fps: int) -> EditSettings:
         seed_frames=int(cfg.seed_frames),
         end_frames=int(cfg.end_frames),
         inpaint_fraction=float(cfg.inpaint_fraction),
-        joints=_list(cfg.joints),
+        joints=as_list(cfg.joints),
         with_root=bool(cfg.with_root),
-        keyframes=[int(k) for k in _list(cfg.keyframes) or []] or None,
-        keyframe_seconds=[float(s) for s in _list(cfg.keyframe_seconds) or []] or None,
+        keyframes=[int(k) for k in as_list(cfg.keyframes) or []] or None,
+        keyframe_seconds=[float(s) for s in as_list(cfg.keyframe_seconds) or []] or None,
     )
 
 
@@ -129,21 +105,21 @@ def generate(cfg: DictConfig) -> GenerationReport:
     """Run one generation job from a composed ``generate`` config; returns what was written and what failed."""
     if not cfg.get("checkpoint"):
         raise ConfigError("give checkpoint=<path of a trained model's .ckpt file>")
-    songs = find_songs(_list(cfg.music) if not isinstance(cfg.music, str) else cfg.music)
+    songs = find_songs(as_list(cfg.music) if not isinstance(cfg.music, str) else cfg.music)
+    sampling = SamplingSettings.from_config(cfg.sampling)
     generator = DanceGenerator.from_checkpoint(
         cfg.checkpoint,
         cache_dir=cfg.paths.cache_dir,
         device=str(cfg.device),
         max_song_seconds=None if cfg.max_song_seconds is None else float(cfg.max_song_seconds),
     )
-    sampling = sampling_settings(cfg)
     plan = generator.resolve_style(cfg.style)
     edit = edit_settings(cfg, generator.fps)
     num_samples = int(cfg.num_samples)
     if num_samples < 1:
         raise ConfigError(f"num_samples must be at least 1, got {num_samples}")
     out_dir = Path(cfg.output_dir).expanduser()
-    formats = [str(f) for f in _list(cfg.formats) or []]
+    formats = [str(f) for f in as_list(cfg.formats) or []]
     report = GenerationReport()
     used: set[str] = set()
     bar = tqdm(songs, desc="songs", unit="song", disable=not cfg.progress)
@@ -193,19 +169,17 @@ def print_report(report: GenerationReport) -> None:
             print(f"  {song}: {message}")
 
 
-register_configs()
-
-
 @hydra.main(version_base="1.3", config_path=None, config_name=CONFIG_NAME)
-def main(cfg: DictConfig) -> None:
-    try:
-        report = generate(cfg)
-    except DgsdpError as e:
-        log.error("%s", e)
-        raise SystemExit(f"error: {e}") from None
+def _main(cfg: DictConfig) -> None:
+    report = run_main(generate, cfg)
     print_report(report)
     if not report.ok:
         raise SystemExit(1)
+
+
+def main() -> None:
+    with generate_configs():
+        _main()
 
 
 if __name__ == "__main__":

@@ -1,8 +1,14 @@
-"""``python train.py``: seed, data, model, callbacks, loggers, trainer, fit (lightning-hydra-template order)."""
+"""``python train.py``: check, seed, data, model, callbacks, loggers, trainer, fit (lightning-hydra-template order).
+
+Everything that can be checked is checked before any data is prepared: the model sizes, the trainer's
+accelerator, the evaluation protocols, and on resume that the checkpoint is readable and was trained with the same
+model and optimiser. A problem ends the run with one message and no half-made run folder.
+"""
 
 from __future__ import annotations
 
 import logging
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -11,16 +17,19 @@ import lightning as L
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
-from dgsdp.cli.config import CONFIG_DIR, audio_encoder_from_config, build_hparams
-from dgsdp.errors import ConfigError, DgsdpError
-from dgsdp.training.module import DanceDiffusion, check_compatible, plain
+from dgsdp.cli.config import CONFIG_DIR, as_list, check_options
+from dgsdp.errors import CheckpointError, ConfigError, DgsdpError
+from dgsdp.registry import build
+from dgsdp.training.module import DanceDiffusion, read_checkpoint
+from dgsdp.training.spec import RunSpec
 from dgsdp.utils.io import atomic_write_text
 
 log = logging.getLogger(__name__)
 GROUP_CHOICES = ("data", "audio", "text_encoder", "style", "style_injection", "model", "diffusion", "loss",
                  "optimizer", "trainer", "logger", "experiment")  # fmt: skip
+ACCELERATORS = ("auto", "cpu", "gpu", "cuda", "mps", "tpu")
 
 
 def group_choices() -> dict[str, str]:
@@ -31,47 +40,89 @@ def group_choices() -> dict[str, str]:
     return {g: str(choices.get(g)) for g in GROUP_CHOICES if g in choices}
 
 
+def audio_encoder_from_config(cfg: DictConfig) -> Any:
+    """The configured audio encoder (its weights load only when it first encodes), or None for ``audio=none``."""
+    if not cfg.get("audio") or cfg.audio.get("_target_") is None:
+        return None
+    return build(cfg.audio, "audio", where="audio")
+
+
+def style_embedder_from_config(cfg: DictConfig) -> Any:
+    """The configured StyleEmbedder (its text encoder loads only when it first embeds), or None."""
+    return build(cfg.style, "style", where="style") if cfg.get("style") else None
+
+
+def check_config(cfg: DictConfig) -> dict[str, Any] | None:
+    """Check what can be checked before any work starts. Returns the resume checkpoint (read once), if any."""
+    model = cfg.get("model") or {}
+    for key in ("seq_len", "d_model", "n_layers", "n_heads", "ff_dim"):
+        value = model.get(key)
+        if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
+            raise ConfigError(f"model.{key} must be a positive integer, got {value!r}")
+    if model.d_model % model.n_heads:
+        raise ConfigError(f"model.d_model={model.d_model} must be a multiple of model.n_heads={model.n_heads}")
+    trainer = cfg.get("trainer") or {}
+    accelerator = str(trainer.get("accelerator", "auto"))
+    if accelerator not in ACCELERATORS:
+        raise ConfigError(f"trainer.accelerator={accelerator!r} is not one of {', '.join(ACCELERATORS)}")
+    if accelerator in ("gpu", "cuda") and not torch.cuda.is_available():
+        raise ConfigError(
+            f"trainer.accelerator={accelerator} but this machine has no CUDA GPU; use trainer=cpu (or "
+            "trainer.accelerator=cpu; with trainer=ddp also trainer.precision=32-true)"
+        )
+    devices = trainer.get("devices", 1)
+    if not (devices == "auto" or (isinstance(devices, int) and devices != 0) or OmegaConf.is_list(devices)):
+        raise ConfigError(f"trainer.devices must be a positive number, 'auto' or a list of ids, got {devices!r}")
+    if cfg.get("evaluate"):
+        check_options("protocol", as_list(cfg.evaluate) or [], "evaluate")
+    if not cfg.get("ckpt_path"):
+        return None
+    return read_checkpoint(str(cfg.ckpt_path))
+
+
 def _resume_logger_ids(cfg: DictConfig, ckpt: dict[str, Any]) -> None:
     """On resume, continue the same wandb run (its id is stored in the checkpoint)."""
     if "wandb" not in (cfg.get("logger") or {}):
         return
-    run_id = ckpt.get("logger_run_ids", {}).get("WandbLogger")
+    run_id = (ckpt.get("logger_run_ids") or {}).get("WandbLogger")
     if run_id:
-        OmegaConf.set_struct(cfg, False)
-        cfg.logger.wandb.id = run_id
-        cfg.logger.wandb.resume = "allow"
+        with open_dict(cfg):
+            cfg.logger.wandb.id = str(run_id)
+            cfg.logger.wandb.resume = "allow"
 
 
 def train(cfg: DictConfig) -> dict[str, Any]:
     """Run one training job. Returns the final metrics and the checkpoint folder."""
+    resume = check_config(cfg)
     L.seed_everything(int(cfg.seed), workers=True)  # seed 0 is a seed, not "no seed"
 
     audio_encoder = audio_encoder_from_config(cfg)
-    style_embedder = instantiate(cfg.style) if cfg.get("style") else None
+    style_embedder = style_embedder_from_config(cfg)
     datamodule = instantiate(cfg.data, audio_encoder=audio_encoder)
     datamodule.prepare_data()
     datamodule.setup("fit")
     bank = style_embedder.bank() if style_embedder is not None and style_embedder.dim else None
 
-    hparams = build_hparams(cfg, audio_encoder, style_embedder, 0 if bank is None else len(bank))
-    hparams["groups"] = group_choices()
-    model = DanceDiffusion(hparams)
+    spec = RunSpec.from_config(
+        cfg,
+        audio_encoder=audio_encoder,
+        style_embedder=style_embedder,
+        style_bank_size=0 if bank is None else len(bank),
+        groups=group_choices(),
+    )
+    if resume is not None:
+        saved = RunSpec.from_checkpoint(resume, str(cfg.ckpt_path))
+        saved.check_resumable_with(spec, str(cfg.ckpt_path))
+        _resume_logger_ids(cfg, resume)
+    model = DanceDiffusion(spec)
     model.normalizer.load_state_dict(datamodule.normalizer.state_dict())
     model.set_style_bank(bank)
     n_params = sum(p.numel() for p in model.denoiser.parameters())
     log.info("denoiser: %.2fM parameters", n_params / 1e6)
 
-    if cfg.get("ckpt_path"):
-        ckpt_path = Path(cfg.ckpt_path).expanduser()
-        if not ckpt_path.is_file():
-            raise ConfigError(f"ckpt_path {ckpt_path} does not exist; give the path of a checkpoint to resume from")
-        saved = torch.load(ckpt_path, map_location="cpu", weights_only=True)
-        check_compatible(saved.get("hyper_parameters", {}), plain(hparams), str(ckpt_path))
-        _resume_logger_ids(cfg, saved)
-
     callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values() if c and "_target_" in c]
     loggers = [instantiate(lg) for lg in (cfg.get("logger") or {}).values() if lg and "_target_" in lg]
-    record = {"config": hparams["config"], "groups": hparams["groups"], "n_params": n_params}
+    record = {"config": spec.record, "groups": spec.groups, "n_params": n_params}
     for logger in loggers:
         logger.log_hyperparams(record)
         if type(logger).__name__ == "WandbLogger":
@@ -98,17 +149,34 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             raise ConfigError("evaluate= needs the final checkpoint: keep callbacks.model_checkpoint (save_last)")
         from dgsdp.cli.evaluate import evaluate_after_training
 
-        result["evaluation"] = evaluate_after_training(cfg, result["checkpoint"], group_choices())
+        result["evaluation"] = evaluate_after_training(cfg, result["checkpoint"], spec.groups)
     return result
+
+
+def remove_unused_run_folder(folder: str | Path) -> None:
+    """Remove a run folder that holds nothing but Hydra's own records (the run stopped before any work)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return
+    own = {".hydra", f"{HydraConfig.get().job.name}.log"} if HydraConfig.initialized() else {".hydra"}
+    if {p.name for p in folder.iterdir()} <= own:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def run_main(task: Any, cfg: DictConfig) -> Any:
+    """Run an entry point's task with one clear message (and no traceback) for errors a user can meet."""
+    try:
+        return task(cfg)
+    except DgsdpError as e:
+        log.error("%s", e)
+        if isinstance(e, ConfigError | CheckpointError) and HydraConfig.initialized():
+            remove_unused_run_folder(HydraConfig.get().runtime.output_dir)
+        raise SystemExit(f"error: {e}") from None
 
 
 @hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="train")
 def main(cfg: DictConfig) -> float | None:
-    try:
-        result = train(cfg)
-    except DgsdpError as e:
-        log.error("%s", e)
-        raise SystemExit(f"error: {e}") from None
+    result = run_main(train, cfg)
     if "checkpoint" in result:
         print(f"checkpoint written: {result['checkpoint']}")
     return result["metrics"].get("val/loss")

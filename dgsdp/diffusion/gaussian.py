@@ -11,6 +11,8 @@ import math
 import torch
 from torch import nn
 
+from dgsdp.registry import register
+
 
 def cosine_betas(num_steps: int, s: float = 0.008, max_beta: float = 0.999) -> torch.Tensor:
     """Cosine schedule (Nichol & Dhariwal): betas (num_steps,) float64, clipped at ``max_beta``."""
@@ -24,6 +26,7 @@ def linear_betas(num_steps: int, start: float = 1e-4, end: float = 0.02) -> torc
     return torch.linspace(start * 1000 / num_steps, end * 1000 / num_steps, num_steps, dtype=torch.float64)
 
 
+@register("diffusion", "dgsdp.diffusion.GaussianDiffusion")
 class GaussianDiffusion(nn.Module):
     """Noise schedule and update rules. Buffers are float32 copies of float64 computations."""
 

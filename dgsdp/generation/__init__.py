@@ -2,25 +2,30 @@
 
 from dgsdp.generation.longform import (
     ChunkedDenoiser,
+    DanceItem,
     WindowLayout,
     cut_windows,
+    sample_items,
     sample_long,
     share_overlaps,
     stitch_windows,
 )
 from dgsdp.generation.pipeline import (
     DanceGenerator,
+    DanceRequest,
     EditSettings,
-    SamplingSettings,
     StylePlan,
     find_songs,
     write_motion,
 )
 from dgsdp.generation.schedule import StyleSpan, is_schedule, parse_schedule, schedule_styles, span_weights
+from dgsdp.sampling import SamplingSettings
 
 __all__ = [
     "ChunkedDenoiser",
     "DanceGenerator",
+    "DanceItem",
+    "DanceRequest",
     "EditSettings",
     "SamplingSettings",
     "StylePlan",
@@ -30,6 +35,7 @@ __all__ = [
     "find_songs",
     "is_schedule",
     "parse_schedule",
+    "sample_items",
     "sample_long",
     "schedule_styles",
     "share_overlaps",

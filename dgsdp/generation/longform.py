@@ -20,7 +20,7 @@ from torch import nn
 from dgsdp.motion import MinMaxNormalizer, matrix_slerp, matrix_to_6d, sixd_to_matrix
 from dgsdp.motion.representation import CONTACT_CHANNELS, POSE_DIM, ROOT_CHANNELS, ROTATION_CHANNELS
 from dgsdp.motion.skeleton import NUM_JOINTS
-from dgsdp.sampling import Condition, Guidance, Sampler
+from dgsdp.sampling import Condition, Guidance, Noise, Sampler
 
 
 @dataclass(frozen=True)
@@ -142,6 +142,126 @@ class ChunkedDenoiser(nn.Module):
         return torch.cat(outs)
 
 
+@dataclass
+class DanceItem:
+    """One dance to sample: ``n_frames`` at 30 FPS, its music (n_frames, Da) or None, its style (ds,), per frame
+    (n_frames, ds) or None, an optional editing mask and the given motion (n_frames, 151, unnormalised), how many
+    samples, and the generator its noise comes from (its own: the result does not depend on the batch)."""
+
+    n_frames: int
+    music: torch.Tensor | None = None
+    style: torch.Tensor | None = None
+    mask: torch.Tensor | None = None
+    known: torch.Tensor | None = None
+    num_samples: int = 1
+    generator: torch.Generator | None = None
+
+
+def sample_items(
+    sampler: Sampler,
+    normalizer: MinMaxNormalizer,
+    items: list[DanceItem],
+    *,
+    window: int = 150,
+    stride: int = 75,
+    method: str = "ddim",
+    steps: int | None = 50,
+    eta: float = 1.0,
+    guidance: Guidance | None = None,
+    chunk_size: int = 0,
+    device: torch.device | str = "cpu",
+    progress: bool = False,
+) -> list[torch.Tensor]:
+    """Sample several dances of any lengths in one batch: returns one unnormalised (S, n_frames, 151) per item.
+
+    Each dance is cut into windows of ``window`` frames ``stride`` apart (one padded window when shorter); all
+    windows of all items are denoised together (``chunk_size`` > 0 bounds the denoiser's batch), neighbours of
+    the same dance agree on their overlap after every step, and the windows are stitched. The given channels of
+    an edited dance equal its ``known`` motion. Items with a generator draw their noise from it alone."""
+    if not items:
+        return []
+    device = torch.device(device)
+    if len({it.music is None for it in items}) > 1 or len({it.style is None for it in items}) > 1:
+        raise ValueError("the dances of one batch must all have music (or none) and all have a style (or none)")
+    layouts = [WindowLayout(it.n_frames, window, stride) for it in items]
+    per_frame_style = any(it.style is not None and it.style.ndim == 2 for it in items)
+    any_mask = any(it.mask is not None for it in items)
+    music, style, masks, knowns, given, rows = [], [], [], [], [], []
+    for it, layout in zip(items, layouts):
+        n_win, total = layout.n_windows, layout.padded_frames
+
+        def windows_of(x: torch.Tensor, pad_value: float | None = None, it=it, layout=layout) -> torch.Tensor:
+            w = cut_windows(pad_frames(x.to(device), layout.padded_frames, pad_value), layout)
+            return w.repeat(it.num_samples, *([1] * (w.ndim - 1)))
+
+        rows.append(it.num_samples * n_win)
+        if it.music is not None:
+            music.append(windows_of(it.music))
+        if it.style is not None:
+            s = it.style.to(device)
+            if per_frame_style:
+                style.append(windows_of(s if s.ndim == 2 else s[None].expand(total, -1)))
+            else:
+                style.append(s[None].expand(rows[-1], -1))
+        if any_mask:
+            if it.mask is None:
+                masks.append(torch.zeros(rows[-1], window, POSE_DIM, device=device))
+                knowns.append(torch.zeros(rows[-1], window, POSE_DIM, device=device))
+                given.append(None)
+            else:
+                if it.known is None:
+                    raise ValueError("a mask needs the known motion it refers to")
+                norm_known = normalizer.normalize(it.known.to(device=device, dtype=torch.float32))
+                masks.append(windows_of(it.mask.to(torch.float32), pad_value=0.0))
+                knowns.append(windows_of(norm_known, pad_value=0.0))
+                given.append(it.known.to(device=device, dtype=torch.float32))
+    bounds = [0]
+    for r in rows:
+        bounds.append(bounds[-1] + r)
+
+    def consistency(x: torch.Tensor, t_next: int) -> torch.Tensor:
+        if t_next <= 0:
+            return x
+        parts = [
+            share_overlaps(x[bounds[i] : bounds[i + 1]], layout.n_windows, stride) for i, layout in enumerate(layouts)
+        ]
+        return torch.cat(parts)
+
+    if all(it.generator is None for it in items):
+        noise = Noise(None)
+    elif any(it.generator is None for it in items):
+        raise ValueError("give every dance of a batch its own generator, or none of them")
+    else:
+        noise = Noise([it.generator for it in items], rows=rows)
+    denoiser = ChunkedDenoiser(sampler.denoiser, chunk_size) if chunk_size > 0 else sampler.denoiser
+    run = Sampler(denoiser, sampler.diffusion, style_guidance=sampler.style_guidance)
+    x = run.sample(
+        (bounds[-1], window, POSE_DIM),
+        Condition(torch.cat(music) if music else None, torch.cat(style) if style else None),
+        method=method,
+        steps=steps,
+        eta=eta,
+        guidance=guidance,
+        mask=torch.cat(masks) if any_mask else None,
+        known=torch.cat(knowns) if any_mask else None,
+        step_callback=consistency if any(layout.n_windows > 1 for layout in layouts) else None,
+        generator=noise,
+        device=device,
+        progress=progress,
+    )
+    motion = normalizer.unnormalize(x)
+    out = []
+    for i, (it, layout) in enumerate(zip(items, layouts)):
+        part = motion[bounds[i] : bounds[i + 1]].reshape(it.num_samples, layout.n_windows, window, POSE_DIM)
+        dances = torch.stack([stitch_windows(part[s], stride)[: it.n_frames] for s in range(it.num_samples)])
+        if any_mask and given[i] is not None:
+            # The given channels exactly as given (stitching blends rotations through matrices, and the
+            # normaliser clips values outside the training range).
+            dances = torch.where(it.mask.to(device).bool(), given[i], dances)
+        out.append(dances)
+    return out
+
+
 def sample_long(
     sampler: Sampler,
     normalizer: MinMaxNormalizer,
@@ -163,60 +283,13 @@ def sample_long(
     device: torch.device | str = "cpu",
     progress: bool = False,
 ) -> torch.Tensor:
-    """Generate ``num_samples`` unnormalised motions (S, n_frames, 151) of any length.
-
-    music: (n_frames, Da) features at 30 FPS or None; style: (ds,), per-frame (n_frames, ds) or None;
-    mask / known: (n_frames, 151) editing mask (1 = given) and the given unnormalised motion.
-    Windows of ``window`` frames ``stride`` apart; ``chunk_size`` > 0 bounds the denoiser's batch.
-    The given channels of the result equal ``known`` after normalisation round-off (values outside the
-    training range are clipped by the normaliser).
-    """
-    layout = WindowLayout(n_frames, window, stride)
-    n_win, total = layout.n_windows, layout.padded_frames
-    device = torch.device(device)
-
-    def windows_of(x: torch.Tensor | None, pad_value: float | None = None) -> torch.Tensor | None:
-        if x is None:
-            return None
-        w = cut_windows(pad_frames(x.to(device), total, pad_value), layout)
-        return w.repeat(num_samples, *([1] * (w.ndim - 1)))
-
-    cond_music = windows_of(music)
-    if style is not None and style.ndim == 1:
-        cond_style = style.to(device)[None].expand(n_win * num_samples, -1).contiguous()
-    else:
-        cond_style = windows_of(style)
-    win_mask = win_known = None
-    if mask is not None:
-        if known is None:
-            raise ValueError("a mask needs the known motion it refers to")
-        norm_known = normalizer.normalize(known.to(device=device, dtype=torch.float32))
-        win_mask = windows_of(mask.to(torch.float32), pad_value=0.0)
-        win_known = windows_of(norm_known, pad_value=0.0)
-
-    def consistency(x: torch.Tensor, t_next: int) -> torch.Tensor:
-        return share_overlaps(x, n_win, stride) if t_next > 0 else x
-
-    denoiser = ChunkedDenoiser(sampler.denoiser, chunk_size) if chunk_size > 0 else sampler.denoiser
-    run = Sampler(denoiser, sampler.diffusion, style_guidance=sampler.style_guidance)
-    x = run.sample(
-        (num_samples * n_win, window, POSE_DIM),
-        Condition(cond_music, cond_style),
-        method=method,
-        steps=steps,
-        eta=eta,
-        guidance=guidance,
-        mask=win_mask,
-        known=win_known,
-        step_callback=consistency if n_win > 1 else None,
-        generator=generator,
-        device=device,
-        progress=progress,
-    )
-    motion = normalizer.unnormalize(x).reshape(num_samples, n_win, window, POSE_DIM)
-    out = torch.stack([stitch_windows(motion[s], stride)[:n_frames] for s in range(num_samples)])
-    if mask is not None:
-        # Stitching blends rotations through matrices; hand back the given values exactly as the sampler did.
-        given = normalizer.unnormalize(norm_known)
-        out = torch.where(mask.to(device).bool(), given, out)
-    return out
+    """Generate ``num_samples`` unnormalised motions (S, n_frames, 151) of one dance of any length (see
+    :func:`sample_items`). music: (n_frames, Da) or None; style: (ds,), per-frame (n_frames, ds) or None;
+    mask / known: (n_frames, 151) editing mask (1 = given) and the given unnormalised motion."""
+    if mask is not None and known is None:
+        raise ValueError("a mask needs the known motion it refers to")
+    item = DanceItem(n_frames, music, style, mask, known, num_samples, generator)
+    return sample_items(
+        sampler, normalizer, [item], window=window, stride=stride, method=method, steps=steps, eta=eta,
+        guidance=guidance, chunk_size=chunk_size, device=device, progress=progress,
+    )[0]  # fmt: skip

@@ -12,7 +12,7 @@ import contextlib
 import logging
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -22,10 +22,10 @@ import torch
 from dgsdp.audio import AudioEncoder, FeatureCache, audio_duration_seconds
 from dgsdp.editing import build_mask, check_task, place_known
 from dgsdp.errors import AudioError, ConfigError
-from dgsdp.generation.longform import sample_long
+from dgsdp.generation.longform import DanceItem, sample_items
 from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styles
 from dgsdp.motion import POSE_DIM, pose_to_joints, unpack_pose
-from dgsdp.sampling import Guidance
+from dgsdp.sampling import SamplingSettings
 from dgsdp.training.module import DanceDiffusion, load_checkpoint
 from dgsdp.utils.device import resolve_device
 from dgsdp.utils.io import atomic_path
@@ -36,22 +36,19 @@ AUDIO_SUFFIXES = (".wav", ".mp3", ".ogg", ".flac")
 
 
 @dataclass
-class SamplingSettings:
-    """How to sample: sampler ``method`` (ddim/ddpm), ``steps``, ``eta``, guidance, windows and batching.
+class DanceRequest:
+    """One dance to make: ``n_frames`` at 30 FPS, music features (n_frames, Da) or None, style (ds,), per frame
+    (n_frames, ds) or None, an optional editing mask with the given motion (both (n_frames, 151)), the number of
+    samples, and the seed of its noise (the same request with the same seed gives the same dance, alone or in a
+    batch)."""
 
-    ``longform_ramp_fraction`` ramps the guidance weights up over that fraction of the steps when a motion
-    needs more than one window (EDGE: 0.5). ``chunk_size`` > 0 bounds the denoiser's batch (long songs).
-    """
-
-    method: str = "ddim"
-    steps: int = 50
-    eta: float = 1.0
-    guidance: Guidance = field(default_factory=Guidance)
-    longform_ramp_fraction: float = 0.5
-    window_frames: int = 150
-    stride_frames: int = 75
-    chunk_size: int = 0
-    bf16: bool = False
+    n_frames: int
+    music: torch.Tensor | None = None
+    style: torch.Tensor | None = None
+    mask: torch.Tensor | None = None
+    known: torch.Tensor | None = None
+    num_samples: int = 1
+    seed: int | None = 0
 
 
 @dataclass
@@ -67,9 +64,6 @@ class EditSettings:
     with_root: bool = False
     keyframes: Sequence[int] | None = None
     keyframe_seconds: Sequence[float] | None = None
-
-    def needs_motion(self) -> bool:
-        return check_task(self.task) != "none"
 
 
 @dataclass
@@ -102,7 +96,10 @@ def find_songs(music: str | os.PathLike | Sequence[str | os.PathLike] | None) ->
 
 
 class DanceGenerator:
-    """A trained model with its audio encoder and style embedder, ready to dance to whole songs."""
+    """A trained model with its audio encoder and style embedder, ready to dance to whole songs.
+
+    This is the project's one way to sample dances: generate.py, evaluate.py, the training callbacks, the
+    benchmarks and the studio all call :meth:`generate_many` (or :meth:`generate` for one dance)."""
 
     def __init__(
         self,
@@ -111,12 +108,15 @@ class DanceGenerator:
         cache_dir: str | os.PathLike,
         device: torch.device | str = "cpu",
         max_song_seconds: float | None = None,
+        trusted: bool = False,
     ) -> None:
         self.model = model.to(device).eval()
         self.device = torch.device(device)
-        self.config: dict[str, Any] = dict(model.hparams.get("config") or {})
-        self.fps = int(model.hparams.get("data", {}).get("fps", 30))
-        self.window = int(model.hparams.get("data", {}).get("window_frames", model.denoiser.seq_len))
+        self.spec = model.spec
+        # parts rebuilt from a checkpoint's config are the project's registered classes only
+        self.source = "config" if trusted else "checkpoint"
+        self.fps = self.spec.fps
+        self.window = self.spec.window_frames
         self.cache = FeatureCache(cache_dir)
         self.cache_dir = Path(cache_dir)
         self.max_song_seconds = max_song_seconds
@@ -142,29 +142,10 @@ class DanceGenerator:
     # --- conditioning ---------------------------------------------------------------------------------------
     @property
     def audio_encoder(self) -> AudioEncoder | None:
-        """The checkpoint's audio encoder (built on first use), or None for a model without music."""
-        if self._audio is None:
-            self._audio = self._build_audio_encoder()
+        """The run's audio encoder (built on first use), or None for a model without music."""
+        if self._audio is None and self.spec.conditioning.audio_dim:
+            self._audio = self.spec.build_audio_encoder(self.source)
         return self._audio
-
-    def _build_audio_encoder(self) -> AudioEncoder | None:
-        audio_dim = int(self.model.hparams["conditioning"].get("audio_dim", 0))
-        audio_cfg = self.config.get("audio")
-        if not audio_dim:
-            return None
-        if not audio_cfg or audio_cfg.get("_target_") is None:
-            raise ConfigError(
-                "the checkpoint's config does not say which audio encoder it was trained with (config.audio)"
-            )
-        from hydra.utils import instantiate
-
-        encoder = instantiate(audio_cfg)
-        if int(encoder.feature_dim) != audio_dim:
-            raise ConfigError(
-                f"the audio encoder in the checkpoint's config gives {encoder.feature_dim}-d features, but the "
-                f"model was trained on {audio_dim}-d features"
-            )
-        return encoder
 
     def check_duration(self, path: Path) -> float:
         """The song's length in seconds; AudioError past ``max_song_seconds``."""
@@ -199,15 +180,11 @@ class DanceGenerator:
         return int(self.model.style_dim)
 
     def embedder(self) -> Any:
-        """The StyleEmbedder of the checkpoint's run (its text encoder loads only for free text)."""
+        """The StyleEmbedder of the run (its text encoder loads only for free text)."""
         if self._embedder is None:
-            style_cfg = dict(self.config.get("style") or {})
-            if not style_cfg.get("_target_"):
-                raise ConfigError("the checkpoint's config has no style section; it cannot embed style text")
-            from hydra.utils import instantiate
-
-            style_cfg["cache_dir"] = str(self.cache_dir)
-            self._embedder = instantiate(style_cfg, _recursive_=False)
+            if not self.spec.style:
+                raise ConfigError("the checkpoint's run has no style config; it cannot embed style text")
+            self._embedder = self.spec.build_style_embedder(self.source, cache_dir=str(self.cache_dir))
         return self._embedder
 
     def embed_style(self, text: str) -> torch.Tensor:
@@ -274,6 +251,42 @@ class DanceGenerator:
         return mask, known
 
     # --- sampling -------------------------------------------------------------------------------------------
+    def generate_many(
+        self, requests: Sequence[DanceRequest], sampling: SamplingSettings | None = None, *, progress: bool = False
+    ) -> list[torch.Tensor]:
+        """Unnormalised motions (num_samples, n_frames, 151), one per request, sampled in batches of up to
+        ``sampling.batch_size`` requests of the same length and editing state. A request's result depends only on
+        the request and its seed, not on the batch it was sampled in."""
+        sampling = sampling or SamplingSettings()
+        window = min(sampling.window_frames or self.window, self.model.denoiser.seq_len)
+        stride = min(sampling.stride_frames, window)
+        groups: dict[tuple[int, bool], list[int]] = {}
+        for i, r in enumerate(requests):
+            if r.n_frames < 1:
+                raise ConfigError(f"a dance needs at least one frame, got {r.n_frames}")
+            groups.setdefault((r.n_frames, r.mask is not None), []).append(i)
+        batches = [
+            idx[k : k + sampling.batch_size] for idx in groups.values() for k in range(0, len(idx), sampling.batch_size)
+        ]
+        out: list[torch.Tensor | None] = [None] * len(requests)
+        autocast = torch.autocast(self.device.type, dtype=torch.bfloat16) if sampling.bf16 else contextlib.nullcontext()
+        for batch in batches:
+            items = [self._item(requests[i]) for i in batch]
+            guidance = sampling.guidance_for(long=requests[batch[0]].n_frames > window)
+            with autocast:
+                motions = sample_items(
+                    self.model.sampler(), self.model.normalizer, items, window=window, stride=stride,
+                    method=sampling.method, steps=sampling.steps, eta=sampling.eta, guidance=guidance,
+                    chunk_size=sampling.chunk_size, device=self.device, progress=progress,
+                )  # fmt: skip
+            for i, motion in zip(batch, motions):
+                out[i] = motion.float().cpu()
+        return out  # type: ignore[return-value]
+
+    def _item(self, r: DanceRequest) -> DanceItem:
+        generator = None if r.seed is None else torch.Generator(device=self.device).manual_seed(int(r.seed))
+        return DanceItem(r.n_frames, r.music, r.style, r.mask, r.known, r.num_samples, generator)
+
     def generate(
         self,
         n_frames: int,
@@ -288,43 +301,8 @@ class DanceGenerator:
         progress: bool = False,
     ) -> torch.Tensor:
         """Unnormalised motions (num_samples, n_frames, 151); music (n_frames, Da), style (ds,)/(n_frames, ds)."""
-        sampling = sampling or SamplingSettings()
-        window = min(sampling.window_frames, self.model.denoiser.seq_len)
-        stride = min(sampling.stride_frames, window)
-        guidance = sampling.guidance
-        if n_frames > window:
-            guidance = Guidance(
-                guidance.music_weight,
-                guidance.style_weight,
-                ramp_fraction=sampling.longform_ramp_fraction,
-                edit_cap_below_t=guidance.edit_cap_below_t,
-            )
-        generator = None
-        if seed is not None:
-            generator = torch.Generator(device=self.device).manual_seed(int(seed))
-        autocast = torch.autocast(self.device.type, dtype=torch.bfloat16) if sampling.bf16 else contextlib.nullcontext()
-        with autocast:
-            motion = sample_long(
-                self.model.sampler(),
-                self.model.normalizer,
-                n_frames,
-                music=music,
-                style=style,
-                num_samples=num_samples,
-                window=window,
-                stride=stride,
-                mask=mask,
-                known=known,
-                method=sampling.method,
-                steps=sampling.steps,
-                eta=sampling.eta,
-                guidance=guidance,
-                chunk_size=sampling.chunk_size,
-                generator=generator,
-                device=self.device,
-                progress=progress,
-            )
-        return motion.float().cpu()
+        request = DanceRequest(n_frames, music, style, mask, known, num_samples, seed)
+        return self.generate_many([request], sampling, progress=progress)[0]
 
 
 def write_motion(

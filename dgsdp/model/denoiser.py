@@ -21,6 +21,7 @@ import torch
 from torch import nn
 
 from dgsdp.model.layers import Attention, EncoderLayer, FeedForward, FiLM, sinusoidal_embedding
+from dgsdp.registry import register
 from dgsdp.style.injection import StyleModulation
 
 INJECTIONS = ("modulation", "concat")
@@ -55,6 +56,7 @@ class DecoderLayer(nn.Module):
         return x + self.drop(self.film3(self.ff(self.norm3(x)), t_cond))
 
 
+@register("model", "dgsdp.model.DanceDenoiser")
 class DanceDenoiser(nn.Module):
     """Predicts x0 from (x_t, t, music, style). All sizes come from config (``conf/model``)."""
 

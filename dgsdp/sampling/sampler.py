@@ -21,6 +21,8 @@ from dgsdp.diffusion import GaussianDiffusion
 from dgsdp.sampling.noise import Noise
 
 StepCallback = Callable[[torch.Tensor, int], torch.Tensor]
+# Sampler methods by name (``sampling.method``).
+METHODS = ("ddim", "ddpm")
 
 
 @dataclass
@@ -99,7 +101,7 @@ class Sampler:
             return list(range(self.diffusion.num_steps - 1, -1, -1))
         if method == "ddim":
             return self.diffusion.ddim_timesteps(steps or 50)
-        raise ValueError(f"unknown sampler {method!r}; use 'ddim' or 'ddpm'")
+        raise ValueError(f"unknown sampler {method!r}; use one of {', '.join(METHODS)}")
 
     @torch.no_grad()
     def sample(

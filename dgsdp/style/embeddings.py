@@ -17,6 +17,7 @@ import torch
 import yaml
 
 from dgsdp.errors import ConfigError, DataError
+from dgsdp.registry import register
 from dgsdp.style.text_encoders import TextEncoder, plain_config
 from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
 from dgsdp.utils.io import DiskCache, stable_hash
@@ -134,6 +135,7 @@ def load_prompts(path: str | os.PathLike, vocab: GenreVocab = AISTPP_GENRES) -> 
     return per_genre
 
 
+@register("style", "dgsdp.style.StyleEmbedder")
 class StyleEmbedder:
     """Builds style vectors of one kind for a genre vocabulary.
 

@@ -1,5 +1,6 @@
-"""Training: the LightningModule (denoiser, diffusion, loss, optimiser, EMA) and callbacks."""
+"""Training: the run spec, the LightningModule (denoiser, diffusion, loss, optimiser, EMA) and callbacks."""
 
-from dgsdp.training.module import DanceDiffusion, check_compatible, load_checkpoint
+from dgsdp.training.module import DanceDiffusion, load_checkpoint, read_checkpoint
+from dgsdp.training.spec import Conditioning, RunSpec
 
-__all__ = ["DanceDiffusion", "check_compatible", "load_checkpoint"]
+__all__ = ["Conditioning", "DanceDiffusion", "RunSpec", "load_checkpoint", "read_checkpoint"]

@@ -26,14 +26,28 @@ class SampleRenderCallback(L.Callback):
             return
         if not trainer.is_global_zero or trainer.datamodule is None:
             return
+        from dgsdp.generation import DanceGenerator, DanceRequest
+        from dgsdp.sampling import SamplingSettings
+
         batch = next(iter(trainer.datamodule.val_dataloader()))
         n = min(self.num_samples, batch["motion"].shape[0])
-        music = batch["audio"][:n].to(pl_module.device) if "audio" in batch else None
         genre = batch["genre"][:n].to(pl_module.device)
-        style = pl_module.style_for(genre, random=False)
-        motion = pl_module.sample_batch(
-            music, style, n_frames=batch["motion"].shape[1], batch=n, steps=self.sampling_steps
+        styles = pl_module.style_for(genre, random=False)
+        frames = batch["motion"].shape[1]
+        requests = [
+            DanceRequest(
+                frames,
+                music=batch["audio"][i] if "audio" in batch else None,
+                style=None if styles is None else styles[i],
+                seed=i,
+            )
+            for i in range(n)
+        ]
+        # the project's one sampling path, on the model being trained (its own config: trusted)
+        generator = DanceGenerator(
+            pl_module, cache_dir=trainer.datamodule.cache_dir, device=pl_module.device, trusted=True
         )
+        motion = torch.cat(generator.generate_many(requests, SamplingSettings(steps=self.sampling_steps)))
         self.write(Path(trainer.default_root_dir) / "samples" / f"epoch{trainer.current_epoch:04d}", motion)
 
     @staticmethod

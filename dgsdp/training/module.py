@@ -1,34 +1,35 @@
 """The LightningModule: denoiser + diffusion + loss + optimiser + EMA, with style and normaliser state.
 
 Everything the model needs at generation time is in its state dict as plain tensors (normaliser statistics,
-style bank) and in ``hparams``, a plain dict (denoiser sizes, diffusion, conditioning, the run's resolved config).
-Checkpoints therefore load with ``torch.load(..., weights_only=True)`` and without this package's classes.
+style bank) and in its :class:`~dgsdp.training.spec.RunSpec`, stored as plain data in ``hyper_parameters``.
+Checkpoints therefore load with ``torch.load(..., weights_only=True)`` and without this package's classes, and
+their configs are data: parts are built only from the project's registered classes (:mod:`dgsdp.registry`).
 """
 
 from __future__ import annotations
 
-import copy
+from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import lightning as L
 import torch
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
-from dgsdp.diffusion import GaussianDiffusion, LossWeights, dance_loss
-from dgsdp.errors import ConfigError
-from dgsdp.model import DanceDenoiser
+from dgsdp.diffusion import dance_loss
+from dgsdp.errors import CheckpointError, ConfigError
 from dgsdp.motion import POSE_DIM, MinMaxNormalizer
-from dgsdp.sampling import Condition, Guidance, Sampler
+from dgsdp.registry import Source
+from dgsdp.sampling import Sampler
 from dgsdp.style.embeddings import StyleBank
+from dgsdp.training.spec import RunSpec
 
-CHECKPOINT_FORMAT = 1
-# Sections of hparams that shape the weights; a checkpoint must agree on them to load.
-ARCHITECTURE_KEYS = ("model", "conditioning")
+CHECKPOINT_FORMAT = 2
 
 
 def plain(obj: Any) -> Any:
     """Recursively turn mappings/sequences (e.g. Lightning's AttributeDict) into builtin dicts and lists."""
-    if isinstance(obj, dict):
+    if isinstance(obj, Mapping):
         return {str(k): plain(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
         return [plain(v) for v in obj]
@@ -38,28 +39,25 @@ def plain(obj: Any) -> Any:
 class DanceDiffusion(L.LightningModule):
     """Trains the denoiser on normalised 151-d windows; samples with the EMA weights.
 
-    hparams: ``model`` (denoiser sizes and injection), ``conditioning`` (audio_dim, audio settings, style kind and
-    dim, style bank size, music/style drop probabilities, text encoder config), ``diffusion``, ``loss``,
-    ``optimizer``, ``ema`` and ``config`` (the full resolved run config, for the record).
+    spec: the run's :class:`RunSpec` (or its plain-dict form, as stored in checkpoints); ``source`` says whether
+    it came from the user's config or from a checkpoint (then only registered classes are built).
     """
 
-    def __init__(self, hparams: dict[str, Any]) -> None:
+    def __init__(self, spec: RunSpec | Mapping[str, Any], source: Source = "config") -> None:
         super().__init__()
-        self.save_hyperparameters(plain(hparams))
-        cond = self.hparams["conditioning"]
-        self.style_dim = int(cond.get("style_dim", 0))
-        self.denoiser = DanceDenoiser(
-            audio_dim=int(cond.get("audio_dim", 0)), style_dim=self.style_dim, **self.hparams["model"]
-        )
-        self.diffusion = GaussianDiffusion(**self.hparams.get("diffusion", {}))
-        self.loss_weights = LossWeights(**self.hparams.get("loss", {}))
+        spec = spec if isinstance(spec, RunSpec) else RunSpec.from_dict(spec, "hyper_parameters")
+        self.spec = spec
+        self.save_hyperparameters(plain(spec.to_dict()))
+        cond = spec.conditioning
+        self.style_dim = cond.style_dim
+        self.denoiser = spec.build_denoiser(source)
+        self.diffusion = spec.build_diffusion(source)
+        self.loss_weights = spec.build_loss(source)
         self.normalizer = MinMaxNormalizer(POSE_DIM)
-        bank_size = int(cond.get("style_bank_size", 0))
-        self.register_buffer("style_vectors", torch.zeros(bank_size, self.style_dim))
-        self.register_buffer("style_genre_index", torch.zeros(bank_size, dtype=torch.long))
-        self.n_genres = int(cond.get("n_genres", 0))
-        decay = float(self.hparams.get("ema", {}).get("decay", 0.9999))
-        self.ema = AveragedModel(self.denoiser, multi_avg_fn=get_ema_multi_avg_fn(decay), use_buffers=True)
+        self.register_buffer("style_vectors", torch.zeros(cond.style_bank_size, self.style_dim))
+        self.register_buffer("style_genre_index", torch.zeros(cond.style_bank_size, dtype=torch.long))
+        self.n_genres = cond.n_genres
+        self.ema = AveragedModel(self.denoiser, multi_avg_fn=get_ema_multi_avg_fn(spec.ema_decay), use_buffers=True)
         self.ema.requires_grad_(False)
 
     # --- state -------------------------------------------------------------------------------------------
@@ -101,14 +99,14 @@ class DanceDiffusion(L.LightningModule):
     ) -> dict[str, torch.Tensor]:
         x0 = batch["motion"]
         b = x0.shape[0]
-        cond = self.hparams["conditioning"]
+        cond = self.spec.conditioning
         t = self.diffusion.sample_timesteps(b, x0.device, generator)
         noise = torch.randn(x0.shape, device=x0.device, generator=generator)
         x_t = self.diffusion.q_sample(x0, t, noise)
         style = self.style_for(batch["genre"], random=train)
         if train:
-            keep_music = torch.rand(b, device=x0.device) >= float(cond.get("music_drop_prob", 0.25))
-            keep_style = torch.rand(b, device=x0.device) >= float(cond.get("style_drop_prob", 0.0))
+            keep_music = torch.rand(b, device=x0.device) >= cond.music_drop_prob
+            keep_style = torch.rand(b, device=x0.device) >= cond.style_drop_prob
         else:
             keep_music = keep_style = torch.ones(b, dtype=torch.bool, device=x0.device)
         pred = denoiser(x_t, t, batch.get("audio"), style, keep_music, keep_style)
@@ -124,8 +122,7 @@ class DanceDiffusion(L.LightningModule):
     def on_train_batch_start(self, batch: Any, batch_idx: int) -> None:
         # The randomness of a step (timesteps, noise, condition dropout, dropout) depends only on (seed, step),
         # so a run resumed from a checkpoint continues exactly as an uninterrupted one would.
-        seed = int(self.hparams.get("config", {}).get("seed", 0) or 0)
-        torch.manual_seed(seed * 1_000_003 + self.global_step)
+        torch.manual_seed(self.spec.seed * 1_000_003 + self.global_step)
 
     def optimizer_step(self, *args: Any, **kwargs: Any) -> None:
         super().optimizer_step(*args, **kwargs)
@@ -138,82 +135,43 @@ class DanceDiffusion(L.LightningModule):
         self.log_dict({f"val/{k}": v for k, v in terms.items()}, batch_size=batch["motion"].shape[0])
 
     def configure_optimizers(self) -> torch.optim.Optimizer:
-        opt = dict(self.hparams.get("optimizer", {"name": "adan", "lr": 2e-4}))
-        name = opt.pop("name", "adan")
-        if "betas" in opt:
-            opt["betas"] = tuple(opt["betas"])
-        params = self.denoiser.parameters()
-        if name == "adan":
-            from adan_pytorch import Adan
-
-            return Adan(params, **opt)
-        if name == "adamw":
-            return torch.optim.AdamW(params, **opt)
-        raise ConfigError(f"unknown optimizer {name!r}; use 'adan' or 'adamw'")
+        return self.spec.build_optimizer(self.denoiser.parameters())
 
     # --- sampling ----------------------------------------------------------------------------------------
     def sampler(self, use_ema: bool = True) -> Sampler:
         denoiser = self.ema.module if use_ema else self.denoiser
-        style_guidance = float(self.hparams["conditioning"].get("style_drop_prob", 0.0)) > 0
-        return Sampler(denoiser, self.diffusion, style_guidance=style_guidance)
-
-    @torch.no_grad()
-    def sample_batch(
-        self,
-        music: torch.Tensor | None,
-        style: torch.Tensor | None,
-        *,
-        n_frames: int,
-        batch: int | None = None,
-        guidance: Guidance | None = None,
-        **sample_kwargs: Any,
-    ) -> torch.Tensor:
-        """Unnormalised 151-d motion (B, T, 151) for music (B, T, Da) and style (B, ds)."""
-        b = batch or (music.shape[0] if music is not None else style.shape[0])
-        x = self.sampler().sample(
-            (b, n_frames, POSE_DIM),
-            Condition(music, style),
-            guidance=guidance,
-            device=self.device,
-            **sample_kwargs,
-        )
-        return self.normalizer.unnormalize(x)
+        return Sampler(denoiser, self.diffusion, style_guidance=self.spec.conditioning.style_guidance)
 
 
-def check_compatible(saved: dict[str, Any], current: dict[str, Any], source: str) -> None:
-    """Raise one clear ConfigError if a checkpoint's architecture differs from the configured one."""
-    diffs = []
-    for section in ARCHITECTURE_KEYS:
-        a, b = saved.get(section, {}), current.get(section, {})
-        for key in sorted(set(a) | set(b)):
-            if key in ("text_encoder", "audio_settings"):
-                continue
-            if a.get(key) != b.get(key):
-                diffs.append(f"{section}.{key}: checkpoint {a.get(key)!r}, config {b.get(key)!r}")
-    if diffs:
-        raise ConfigError(
-            f"checkpoint {source} was trained with a different model configuration:\n  "
-            + "\n  ".join(diffs)
-            + "\nUse the same config groups (audio, style, model, ...) as the checkpoint's run, or start a new run."
-        )
-
-
-def load_checkpoint(path: str, map_location: str | torch.device = "cpu") -> DanceDiffusion:
-    """Rebuild a trained model from a checkpoint (plain tensors + plain-dict config), EMA weights included."""
-    from pathlib import Path
-
+def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """A checkpoint file as plain data (tensors and builtins only), or one clear CheckpointError."""
     p = Path(path).expanduser()
     if not p.is_file():
-        raise ConfigError(f"checkpoint {p} does not exist; train one with 'python train.py' or check the path")
+        raise CheckpointError(f"checkpoint {p} does not exist; train one with 'python train.py' or check the path")
     try:
         ckpt = torch.load(p, map_location=map_location, weights_only=True)
     except Exception as e:  # noqa: BLE001 - any failure here means the file is not a usable checkpoint
-        raise ConfigError(f"cannot read checkpoint {p} ({type(e).__name__}: {e})") from e
-    if "hyper_parameters" not in ckpt or "state_dict" not in ckpt:
-        raise ConfigError(f"{p} is not a dgsdp checkpoint (no hyper_parameters/state_dict)")
-    model = DanceDiffusion(copy.deepcopy(ckpt["hyper_parameters"]))
+        first = str(e).strip().splitlines()[0][:300] if str(e).strip() else ""
+        raise CheckpointError(
+            f"cannot read checkpoint {p}: {type(e).__name__}: {first}. It is damaged, not a PyTorch checkpoint, "
+            "or holds objects other than tensors and plain values (which are never loaded)"
+        ) from e
+    if not isinstance(ckpt, dict) or "hyper_parameters" not in ckpt or "state_dict" not in ckpt:
+        raise CheckpointError(f"{p} is not a dgsdp checkpoint (no hyper_parameters/state_dict)")
+    return ckpt
+
+
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> DanceDiffusion:
+    """Rebuild a trained model from a checkpoint (plain tensors + its run spec as data), EMA weights included."""
+    ckpt = read_checkpoint(path, map_location)
+    source = str(Path(path).expanduser())
+    spec = RunSpec.from_checkpoint(ckpt, source)
+    model = DanceDiffusion(spec, source="checkpoint")
+    state = ckpt["state_dict"]
+    if not isinstance(state, Mapping) or not all(torch.is_tensor(v) for v in state.values()):
+        raise CheckpointError(f"checkpoint {source}: state_dict must map names to tensors")
     try:
-        model.load_state_dict(ckpt["state_dict"])
+        model.load_state_dict(state)
     except RuntimeError as e:
-        raise ConfigError(f"checkpoint {p} does not match its own configuration: {e}") from e
+        raise CheckpointError(f"checkpoint {source} does not match its own configuration: {e}") from e
     return model.eval()

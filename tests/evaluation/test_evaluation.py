@@ -17,7 +17,9 @@ from dgsdp.data.aistpp import music_path
 from dgsdp.data.datamodule import load_sequences
 from dgsdp.errors import ConfigError, DataError
 from dgsdp.evaluation import Evaluator, ProtocolSpec, Variant, results_markdown, summarise, upsample_joints
-from dgsdp.evaluation.runner import WarningLog
+from dgsdp.evaluation import WarningLog, sample_clips
+from dgsdp.generation import DanceGenerator
+from dgsdp.sampling import SamplingSettings
 from dgsdp.metrics import (
     GenreClassifier,
     MetricError,
@@ -32,6 +34,12 @@ from dgsdp.motion import pose_to_joints
 from dgsdp.training import load_checkpoint
 
 METRIC_NAMES = ["BeatAlign", "PFC", "FID_k", "FID_g", "Div_k", "Div_g", "StyleAcc"]
+
+
+def evaluator(run, protocol: dict) -> Evaluator:
+    generator = DanceGenerator(load_checkpoint(run["checkpoint"]), cache_dir=run["cache"])
+    spec = ProtocolSpec.from_config(protocol)
+    return Evaluator(generator, spec, data_root=run["root"], cache_dir=run["cache"], progress=False)
 
 
 def rows_by_name(results):
@@ -185,13 +193,10 @@ def test_longform_and_masking_protocols(trained_run, tmp_path):
 
 
 def test_masked_rows_keep_the_given_motion(trained_run):
-    model = load_checkpoint(trained_run["checkpoint"])
-    spec = ProtocolSpec.from_config({"name": "t", "tasks": ["seed_motion"], "seed_frames": 20})
-    ev = Evaluator(model, spec, data_root=trained_run["root"], cache_dir=trained_run["cache"], progress=False)
-    ev.sampling.steps = 2
-    seqs = ev.load_split("test", ev.audio_encoder())
-    clips = ev.clips(seqs, 5.0)[:2]
-    joints = ev.sample(clips, Variant(5.0, 2.0, "seed_motion", "seed_motion"), trial=0)
+    ev = evaluator(trained_run, {"name": "t", "tasks": ["seed_motion"], "seed_frames": 20})
+    clips = ev.source.clips(ev.source.load_split("test"), 5.0)[:2]
+    variant = Variant(5.0, 2.0, "seed_motion", "seed_motion")
+    joints = sample_clips(ev.generator, clips, variant, ev.spec, SamplingSettings(steps=2), seed=0, trial=0)
     for clip, j in zip(clips, joints):
         real = pose_to_joints(torch.from_numpy(clip.motion).double()).numpy()
         np.testing.assert_allclose(j[:20], real[:20], atol=1e-4)
@@ -199,15 +204,13 @@ def test_masked_rows_keep_the_given_motion(trained_run):
 
 
 def test_subsets_cover_every_genre(trained_run):
-    model = load_checkpoint(trained_run["checkpoint"])
-    spec = ProtocolSpec.from_config({"name": "t", "clips_per_trial": 10})
-    ev = Evaluator(model, spec, data_root=trained_run["root"], cache_dir=trained_run["cache"], progress=False)
-    clips = ev.clips(ev.load_split("test", None), 2.0)  # 7 s dances, 2 s clips every 2.5 s: 3 per dance
+    ev = evaluator(trained_run, {"name": "t", "clips_per_trial": 10})
+    clips = ev.source.clips(ev.source.load_split("test", with_music=False), 2.0)  # 7 s dances, 2 s clips every 2.5 s: 3 per dance
     assert len(clips) == 30
     for trial in range(3):
-        idx = ev.subset(clips, trial)
+        idx = ev.source.subset(clips, trial)
         assert len(idx) == 10 and len({clips[i].seq.genre_index for i in idx}) == 10
-    assert ev.subset(clips, 0) != ev.subset(clips, 1)
+    assert ev.source.subset(clips, 0) != ev.source.subset(clips, 1)
 
 
 def test_bailando_protocol_uses_the_dataset_pool_and_skips_missing_splits(trained_run, tmp_path):

@@ -1,31 +1,31 @@
 """Helpers for the generation tests: a tiny random-init model and valid 151-d motions."""
 
+import dataclasses
+
 import torch
 from motion_helpers import random_motion  # noqa: F401 - used by the generation tests
 
 from dgsdp.style import StyleBank
-from dgsdp.training.module import DanceDiffusion
+from dgsdp.training import DanceDiffusion, RunSpec
 
 AUDIO_DIM = 35
 STYLE_DIM = 10
 
 
-def tiny_hparams(style_kind: str = "onehot") -> dict:
-    return {
-        "model": {"seq_len": 150, "d_model": 32, "n_layers": 1, "n_heads": 2, "ff_dim": 64,
-                  "music_encoder_layers": 1, "dropout": 0.0, "style_injection": "modulation"},
-        "conditioning": {"audio_dim": AUDIO_DIM, "style_dim": STYLE_DIM, "style_bank_size": STYLE_DIM,
-                         "n_genres": STYLE_DIM, "style_kind": style_kind},
-        "diffusion": {},
-        "config": {"style": {"_target_": "dgsdp.style.StyleEmbedder", "_recursive_": False, "kind": style_kind,
-                             "text_encoder": None, "vocab": None, "cache_dir": None}},
-    }  # fmt: skip
+def tiny_spec(style_kind: str = "onehot") -> RunSpec:
+    """A tiny one-hot-style model's run spec (a style embedder config so that generation can read genres)."""
+    spec = RunSpec.from_groups(
+        model="small", audio_dim=AUDIO_DIM, style_dim=STYLE_DIM, style_kind=style_kind, style_bank_size=STYLE_DIM,
+        n_genres=STYLE_DIM, d_model=32, n_layers=1, n_heads=2, ff_dim=64, music_encoder_layers=1, dropout=0.0,
+    )  # fmt: skip
+    style = {"_target_": "dgsdp.style.StyleEmbedder", "kind": style_kind, "text_encoder": None, "vocab": None}
+    return dataclasses.replace(spec, style=style, audio={"_target_": "dgsdp.audio.LibrosaEncoder"})
 
 
 def tiny_model() -> DanceDiffusion:
     """Random-init tiny denoiser with a one-hot style bank and a normaliser fitted on random motions."""
     torch.manual_seed(0)
-    model = DanceDiffusion(tiny_hparams()).eval()
+    model = DanceDiffusion(tiny_spec()).eval()
     model.set_style_bank(StyleBank(torch.eye(STYLE_DIM), torch.arange(STYLE_DIM), STYLE_DIM))
     model.normalizer.fit(torch.cat([random_motion(400, seed=s) for s in range(3)]))
     return model

@@ -12,7 +12,8 @@ import soundfile as sf
 from gen_helpers import train_tiny_checkpoint, write_click_song
 
 from dgsdp.cli.config import PROJECT_ROOT
-from dgsdp.cli.generate import compose_config, generate
+from dgsdp.cli.config import compose_config
+from dgsdp.cli.generate import generate
 from dgsdp.editing import load_motion_file
 from dgsdp.errors import ConfigError, DataError
 
@@ -39,8 +40,9 @@ def gen_config(tmp: Path, checkpoint: str, music, *overrides: str):
         return "[" + ",".join(str(x) for x in v) + "]" if isinstance(v, list) else str(v)
 
     return compose_config(
+        "generate",
             [
-                f"checkpoint={checkpoint}", f"music={value(music)}", "style=krump", "steps=2", "progress=false",
+                f"checkpoint={checkpoint}", f"music={value(music)}", "style=krump", "sampling.steps=2", "progress=false",
                 f"output_dir={tmp / 'out'}", f"paths.output_dir={tmp / 'out'}", f"paths.cache_dir={tmp / 'cache'}",
                 "device=cpu", *overrides,
             ]
@@ -105,7 +107,7 @@ def _first_motion(tmp_path, checkpoint, songs) -> Path:
 def test_command_line_exit_codes_and_messages(tmp_path, checkpoint, songs):
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "offline", "PYTHONPATH": str(PROJECT_ROOT)}
     cmd = [sys.executable, str(PROJECT_ROOT / "generate.py"), f"checkpoint={checkpoint}",
-           f"music=[{songs['good']},{songs['broken']}]", "style=BR", "steps=2", "formats=[npy,pkl]",
+           f"music=[{songs['good']},{songs['broken']}]", "style=BR", "sampling.steps=2", "formats=[npy,pkl]",
            f"output_dir={tmp_path / 'out'}", f"paths.cache_dir={tmp_path / 'cache'}", f"hydra.run.dir={tmp_path}"]  # fmt: skip
     run = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
     assert run.returncode == 1, run.stderr

@@ -8,7 +8,8 @@ from hydra import compose, initialize_config_dir
 
 from dgsdp.cli.config import CONFIG_DIR
 from dgsdp.editing import load_motion_file
-from dgsdp.generation import DanceGenerator, SamplingSettings, WindowLayout
+from dgsdp.generation import DanceGenerator, WindowLayout
+from dgsdp.sampling import GuidanceSettings, SamplingSettings
 from dgsdp.metrics import GenreClassifier, geometric_features, kinetic_features
 from dgsdp.motion import pose_to_joints
 from dgsdp.sampling import Guidance
@@ -97,7 +98,7 @@ def test_style_schedule_spans_dance_their_genres(trained):
     style = generator.style_frames(plan, n, blend_seconds=1.0)
     # music weight 1, style weight 2: x = x_m + 2 (x_ms - x_m) amplifies the style only (an undertrained model's
     # dances collapse towards the clamp when the music is extrapolated at w = 2)
-    sampling = SamplingSettings(steps=50, guidance=Guidance(1.0, 2.0))
+    sampling = SamplingSettings(steps=50, guidance=GuidanceSettings(music=1.0, style=2.0))
     motions = generator.generate(n, music=music, style=style, num_samples=3, sampling=sampling, seed=0)
     predicted, wanted = [], []
     for motion in motions:

@@ -5,7 +5,9 @@ from pathlib import Path
 import pytest
 from hydra.utils import instantiate
 
-from dgsdp.cli.config import CONFIG_DIR, audio_encoder_from_config, build_hparams, compose_config
+from dgsdp.cli.config import CONFIG_DIR, compose_config
+from dgsdp.cli.train import audio_encoder_from_config, style_embedder_from_config
+from dgsdp.training.spec import RunSpec
 from dgsdp.training import DanceDiffusion
 
 EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
@@ -37,10 +39,10 @@ def test_experiment_folder_holds_every_paper_row():
 def test_experiment_composes_and_builds_paper_size_model(name, tmp_path):
     cfg = compose_config("train", [f"experiment={name}"], output_dir=tmp_path)
     audio = audio_encoder_from_config(cfg)  # builds the encoder object; weights load only when encoding
-    style = instantiate(cfg.style)
+    style = style_embedder_from_config(cfg)
     bank_size = len(style.bank_texts()[0]) if style.dim else 0
-    hparams = build_hparams(cfg, audio, style, bank_size)
-    model = DanceDiffusion(hparams)
+    spec = RunSpec.from_config(cfg, audio_encoder=audio, style_embedder=style, style_bank_size=bank_size, groups={})
+    model = DanceDiffusion(spec)
     n_params = sum(p.numel() for p in model.denoiser.parameters())
     print(f"{name}: {n_params / 1e6:.2f}M parameters")
     # The papers' counts (EDGE ~49.5M, DGSDP 49.7M) are with 4800-d Jukebox features; other encoders change only
@@ -53,7 +55,7 @@ def test_experiment_composes_and_builds_paper_size_model(name, tmp_path):
         assert style.kind == kind
         assert cfg.run_name == name
         if injection is not None:
-            assert hparams["model"]["style_injection"] == injection
+            assert spec.model["style_injection"] == injection
             assert model.denoiser.use_modulation == (injection == "modulation")
         else:
             assert model.denoiser.style_dim == 0
@@ -63,7 +65,11 @@ def test_experiment_composes_and_builds_paper_size_model(name, tmp_path):
 
 def test_edge_parameter_count_matches_paper(tmp_path):
     cfg = compose_config("train", ["experiment=edge"], output_dir=tmp_path)
-    model = DanceDiffusion(build_hparams(cfg, audio_encoder_from_config(cfg), instantiate(cfg.style), 0))
+    spec = RunSpec.from_config(
+        cfg, audio_encoder=audio_encoder_from_config(cfg), style_embedder=style_embedder_from_config(cfg),
+        style_bank_size=0, groups={},
+    )  # fmt: skip
+    model = DanceDiffusion(spec)
     n_params = sum(p.numel() for p in model.denoiser.parameters())
     print(f"EDGE-size denoiser: {n_params:,} parameters")
     assert abs(n_params - 49.5e6) <= 1e6

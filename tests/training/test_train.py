@@ -194,7 +194,7 @@ def test_it_learns_and_music_helps(tmp_path):
     import lightning as L
     from hydra.utils import instantiate
 
-    from dgsdp.cli.config import audio_encoder_from_config
+    from dgsdp.cli.train import audio_encoder_from_config
     from dgsdp.data.synthetic import generate_synthetic_aistpp
 
     root = generate_synthetic_aistpp(tmp_path / "data", seed=0)
@@ -213,7 +213,7 @@ def test_it_learns_and_music_helps(tmp_path):
         val_loss[audio] = trainer.validate(model, datamodule=datamodule, verbose=False)[0]["val/loss"]
         if audio == "librosa":  # a freshly initialised model of the same config (its EMA = its initial weights)
             torch.manual_seed(0)
-            untrained = type(model)(dict(model.hparams))
+            untrained = type(model)(model.spec)
             untrained.normalizer.load_state_dict(model.normalizer.state_dict())
             val_loss["initial"] = trainer.validate(untrained, datamodule=datamodule, verbose=False)[0]["val/loss"]
     print(val_loss)

@@ -1,0 +1,148 @@
+"""The clips a protocol dances to: stretches of real dances with their music and beats, and each trial's subset."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dgsdp.audio import AudioEncoder, FeatureCache
+from dgsdp.cli.config import CONFIG_DIR
+from dgsdp.data.aistpp import music_path
+from dgsdp.data.datamodule import Sequence as DanceSequence
+from dgsdp.data.datamodule import load_sequences, window_starts
+from dgsdp.errors import DataError
+from dgsdp.evaluation.features import MODEL_FPS
+from dgsdp.evaluation.protocols import ProtocolSpec
+from dgsdp.evaluation.scoring import WarningLog
+from dgsdp.metrics import music_beats_from_features
+
+ALL_SPLITS = ("train", "val", "test")
+
+
+def clip_seed(seed: int, trial: int, index: int) -> int:
+    """The seed of the dance made for clip ``index`` (its place among the protocol's clips of its length) in
+    trial ``trial``: ``generate.py seed=<this>`` on the clip's song makes the same dance."""
+    return int(seed) + 1_000_003 * int(trial) + int(index)
+
+
+@dataclass
+class Clip:
+    """A stretch of one real dance and its music: frames ``start .. start + n_frames`` at 30 FPS."""
+
+    seq: DanceSequence
+    start: int
+    n_frames: int
+    beats_30fps: np.ndarray  # (K,) music beat frames relative to ``start``
+    index: int = 0  # place among the protocol's clips of this length (decides the clip's seed)
+
+    @property
+    def motion(self) -> np.ndarray:
+        """(n_frames, 151) unnormalised, z-up."""
+        return self.seq.motion[self.start : self.start + self.n_frames]
+
+    def music(self) -> np.ndarray | None:
+        """(n_frames, Da) features, the song's last frame held if it ends early; None without features."""
+        if self.seq.audio is None or self.seq.audio.ndim != 2:
+            return None
+        chunk = self.seq.audio[self.start : self.start + self.n_frames]
+        if len(chunk) == 0:
+            raise DataError(f"the music of {self.seq.name} ends before frame {self.start}")
+        if len(chunk) < self.n_frames:
+            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], self.n_frames - len(chunk), axis=0)])
+        return chunk
+
+
+class ClipSource:
+    """Reads a protocol's splits and cuts them into clips with their beats; draws each trial's subset."""
+
+    def __init__(
+        self,
+        spec: ProtocolSpec,
+        *,
+        data_root: str | Path,
+        cache_dir: str | Path,
+        audio_encoder: AudioEncoder | None,
+        seed: int,
+        warnings: WarningLog,
+        progress: bool = True,
+    ) -> None:
+        self.spec = spec
+        self.data_root = Path(data_root).expanduser()
+        self.cache_dir = Path(cache_dir).expanduser()
+        self.audio_encoder = audio_encoder
+        self.seed = int(seed)
+        self.warnings = warnings
+        self.progress = progress
+        self._beat_encoder: AudioEncoder | None = None
+        self._beats: dict[str, np.ndarray] = {}
+
+    def load_split(self, split: str, with_music: bool = True) -> list[DanceSequence]:
+        """Sequences of a split (with the model's music features), or [] with a warning when there is none."""
+        try:
+            return load_sequences(
+                self.data_root, split, fps=MODEL_FPS, cache_dir=self.cache_dir,
+                audio_encoder=self.audio_encoder if with_music else None, progress=self.progress,
+            )  # fmt: skip
+        except DataError as e:
+            self.warnings.add("data", "-", f"split {split!r} skipped: {e}")
+            return []
+
+    def music_beats(self, seq: DanceSequence) -> np.ndarray:
+        """Beat frames (K,) at 30 FPS of a sequence's music: column 34 of the 35-d librosa features (the model's
+        own features when it was trained on them, else the librosa encoder of ``conf/audio/librosa.yaml``)."""
+        if seq.music_id in self._beats:
+            return self._beats[seq.music_id]
+        if self.audio_encoder is not None and self.audio_encoder.name == "librosa" and seq.audio is not None:
+            feats = seq.audio
+        else:
+            if self._beat_encoder is None:
+                from omegaconf import OmegaConf
+
+                from dgsdp.registry import build
+
+                node = OmegaConf.to_container(OmegaConf.load(CONFIG_DIR / "audio" / "librosa.yaml"))
+                self._beat_encoder = build(node, "audio", where="audio")
+            path = music_path(self.data_root, seq.music_id)
+            feats = FeatureCache(self.cache_dir).features_for_file(self._beat_encoder, path, music_id=seq.music_id)
+        self._beats[seq.music_id] = music_beats_from_features(feats)
+        return self._beats[seq.music_id]
+
+    def clips(self, sequences: list[DanceSequence], seconds: float) -> list[Clip]:
+        """Clips of ``seconds`` from the protocol's music: every window ``stride_seconds`` apart, or (stride
+        null) the start of each dance, at most ``seconds`` long; capped at ``max_dances``."""
+        n_frames = int(round(seconds * MODEL_FPS))
+        out: list[Clip] = []
+        for seq in sequences:
+            if self.spec.stride_seconds is None:
+                starts, n = [0], min(n_frames, len(seq.motion))
+            else:
+                starts = window_starts(len(seq.motion), n_frames, int(round(self.spec.stride_seconds * MODEL_FPS)))
+                n = n_frames
+            beats = self.music_beats(seq)
+            for s in starts:
+                rel = beats[(beats >= s) & (beats < s + n)] - s
+                out.append(Clip(seq, s, n, rel, index=len(out)))
+        if self.spec.max_dances is not None:
+            out = out[: self.spec.max_dances]
+        if len(out) < 2:
+            raise DataError(
+                f"protocol {self.spec.name!r} found {len(out)} clip(s) of {seconds:g} s in splits {self.spec.splits} "
+                f"of {self.data_root}; FID and diversity need at least 2. Use a dataset with longer or more "
+                "sequences, or shorter protocol.lengths_seconds."
+            )
+        return out
+
+    def subset(self, clips: list[Clip], trial: int) -> list[int]:
+        """Indices of the clips of one trial: all of them, or ``clips_per_trial`` drawn round-robin over genres."""
+        k = self.spec.clips_per_trial
+        if k is None or k >= len(clips):
+            return list(range(len(clips)))
+        rng = np.random.default_rng(self.seed + trial)
+        by_genre: dict[int, list[int]] = {}
+        for i, clip in enumerate(clips):
+            by_genre.setdefault(clip.seq.genre_index, []).append(i)
+        queues = [list(rng.permutation(v)) for _, v in sorted(by_genre.items())]
+        order = [int(q[i]) for i in range(max(len(q) for q in queues)) for q in queues if i < len(q)]
+        return sorted(order[:k])

@@ -1,0 +1,67 @@
+"""Dances for a protocol's clips, made through the project's one sampling path (:class:`DanceGenerator`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from dgsdp.editing.masks import build_mask
+from dgsdp.evaluation.clips import Clip, clip_seed
+from dgsdp.evaluation.features import MODEL_FPS, motion_to_joints
+from dgsdp.evaluation.protocols import ProtocolSpec, Variant
+from dgsdp.generation.pipeline import DanceGenerator, DanceRequest
+from dgsdp.sampling import SamplingSettings
+
+
+def clip_requests(
+    generator: DanceGenerator, clips: list[Clip], variant: Variant, spec: ProtocolSpec, *, seed: int, trial: int
+) -> list[DanceRequest]:
+    """One request per clip: its music, its genre's style (the style bank's mean, as ``style=<genre>`` in
+    generate.py), the variant's editing mask with the real dance as the given motion, and the clip's seed."""
+    model = generator.model
+    requests = []
+    for clip in clips:
+        s = clip_seed(seed, trial, clip.index)
+        genre = torch.tensor([clip.seq.genre_index], device=model.device)
+        style = model.style_for(genre, random=False)
+        music = clip.music()
+        mask = known = None
+        if variant.task != "none":
+            mask = build_mask(
+                variant.task, clip.n_frames, seed_frames=spec.seed_frames, end_frames=spec.end_frames,
+                inpaint_fraction=spec.inpaint_fraction, fps=MODEL_FPS, generator=torch.Generator().manual_seed(s),
+            )  # fmt: skip
+            known = torch.from_numpy(np.ascontiguousarray(clip.motion)).float()
+        requests.append(
+            DanceRequest(
+                clip.n_frames,
+                music=None if music is None else torch.from_numpy(np.ascontiguousarray(music)).float(),
+                style=None if style is None else style[0].cpu(),
+                mask=mask,
+                known=known,
+                seed=s,
+            )
+        )
+    return requests
+
+
+def sample_clips(
+    generator: DanceGenerator,
+    clips: list[Clip],
+    variant: Variant,
+    spec: ProtocolSpec,
+    sampling: SamplingSettings,
+    *,
+    seed: int,
+    trial: int,
+) -> list[np.ndarray]:
+    """Generated dances for ``clips`` as 30 FPS z-up joints (T, 24, 3), with the variant's guidance weight."""
+    g = sampling.guidance
+    settings = SamplingSettings(
+        method=sampling.method, steps=sampling.steps, eta=sampling.eta,
+        guidance=type(g)(variant.weight, g.style, g.longform_ramp_fraction, g.edit_cap_below_t),
+        window_frames=sampling.window_frames, stride_frames=sampling.stride_frames, chunk_size=sampling.chunk_size,
+        batch_size=sampling.batch_size, bf16=sampling.bf16,
+    )  # fmt: skip
+    motions = generator.generate_many(clip_requests(generator, clips, variant, spec, seed=seed, trial=trial), settings)
+    return [motion_to_joints(m[0].numpy()) for m in motions]

@@ -1,0 +1,87 @@
+"""How to sample: the settings of ``conf/sampling`` shared by generation, evaluation, training callbacks and the
+benchmarks (one dataclass, also the config group's schema)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from dgsdp.errors import ConfigError
+from dgsdp.sampling.sampler import METHODS, Guidance
+
+
+@dataclass
+class GuidanceSettings:
+    """Classifier-free guidance weights; see :class:`~dgsdp.sampling.Guidance`."""
+
+    music: float = 2.0
+    style: float = 1.0  # only used by models trained with style dropout
+    longform_ramp_fraction: float = 0.5  # dances longer than one window: weights rise from 0 over this fraction
+    edit_cap_below_t: int = 100  # with an editing mask, weights are capped at 1 below this diffusion step
+
+
+@dataclass
+class SamplingSettings:
+    """Sampler ``method`` and ``steps``, DDIM ``eta``, guidance, long-form windows and batching.
+
+    window_frames: None = the model's training window. stride_frames: consecutive long-form windows start this
+    far apart. chunk_size > 0: at most this many windows per denoiser call (memory). batch_size: independent
+    dances sampled together. bf16: autocast on CUDA."""
+
+    method: str = "ddim"
+    steps: int = 50
+    eta: float = 1.0
+    guidance: GuidanceSettings = field(default_factory=GuidanceSettings)
+    window_frames: int | None = None
+    stride_frames: int = 75
+    chunk_size: int = 0
+    batch_size: int = 64
+    bf16: bool = False
+
+    def __post_init__(self) -> None:
+        if isinstance(self.guidance, Mapping):
+            self.guidance = GuidanceSettings(**self.guidance)
+        self.method = str(self.method).lower()
+        if self.method not in METHODS:
+            raise ConfigError(f"sampling.method={self.method!r} is not a sampler; use one of {', '.join(METHODS)}")
+        if int(self.steps) < 1:
+            raise ConfigError(f"sampling.steps must be at least 1, got {self.steps}")
+        if not 0.0 <= float(self.eta) <= 1.0:
+            raise ConfigError(f"sampling.eta must lie in [0, 1], got {self.eta}")
+        for name in ("stride_frames", "batch_size"):
+            if int(getattr(self, name)) < 1:
+                raise ConfigError(f"sampling.{name} must be at least 1, got {getattr(self, name)}")
+        if self.window_frames is not None and int(self.window_frames) < 1:
+            raise ConfigError(f"sampling.window_frames must be at least 1 (or null), got {self.window_frames}")
+        if int(self.chunk_size) < 0:
+            raise ConfigError(f"sampling.chunk_size must be >= 0, got {self.chunk_size}")
+        if not 0.0 <= float(self.guidance.longform_ramp_fraction) <= 1.0:
+            raise ConfigError("sampling.guidance.longform_ramp_fraction must lie in [0, 1]")
+
+    @classmethod
+    def from_config(cls, node: Any) -> SamplingSettings:
+        """From the ``sampling`` node of a composed config (or a plain mapping); unknown keys are an error."""
+        from omegaconf import OmegaConf
+
+        data = OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else dict(node)
+        known = set(cls.__dataclass_fields__)
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ConfigError(f"unknown sampling setting(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+        guidance = data.pop("guidance", {}) or {}
+        unknown = sorted(set(guidance) - set(GuidanceSettings.__dataclass_fields__))
+        if unknown:
+            raise ConfigError(f"unknown sampling.guidance setting(s) {', '.join(unknown)}")
+        return cls(guidance=GuidanceSettings(**guidance), **data)
+
+    def guidance_for(self, long: bool, music: float | None = None) -> Guidance:
+        """The sampler's Guidance: ramped when the dance needs more than one window; ``music`` replaces the music
+        weight (evaluation rows that compare weights)."""
+        g = self.guidance
+        return Guidance(
+            g.music if music is None else float(music),
+            g.style,
+            ramp_fraction=g.longform_ramp_fraction if long else 0.0,
+            edit_cap_below_t=g.edit_cap_below_t,
+        )
