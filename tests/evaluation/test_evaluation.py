@@ -16,10 +16,17 @@ from dgsdp.cli.evaluate import evaluate
 from dgsdp.data.aistpp import music_path
 from dgsdp.data.datamodule import load_sequences
 from dgsdp.errors import ConfigError, DataError
-from dgsdp.evaluation import Evaluator, ProtocolSpec, Variant, results_markdown, summarise, upsample_joints
-from dgsdp.evaluation import WarningLog, sample_clips
+from dgsdp.evaluation import (
+    Evaluator,
+    ProtocolSpec,
+    Variant,
+    WarningLog,
+    results_markdown,
+    sample_clips,
+    summarise,
+    upsample_joints,
+)
 from dgsdp.generation import DanceGenerator
-from dgsdp.sampling import SamplingSettings
 from dgsdp.metrics import (
     GenreClassifier,
     MetricError,
@@ -31,6 +38,7 @@ from dgsdp.metrics import (
     pfc,
 )
 from dgsdp.motion import pose_to_joints
+from dgsdp.sampling import SamplingSettings
 from dgsdp.training import load_checkpoint
 
 METRIC_NAMES = ["BeatAlign", "PFC", "FID_k", "FID_g", "Div_k", "Div_g", "StyleAcc"]
@@ -205,7 +213,9 @@ def test_masked_rows_keep_the_given_motion(trained_run):
 
 def test_subsets_cover_every_genre(trained_run):
     ev = evaluator(trained_run, {"name": "t", "clips_per_trial": 10})
-    clips = ev.source.clips(ev.source.load_split("test", with_music=False), 2.0)  # 7 s dances, 2 s clips every 2.5 s: 3 per dance
+    clips = ev.source.clips(
+        ev.source.load_split("test", with_music=False), 2.0
+    )  # 7 s dances, 2 s clips every 2.5 s: 3 per dance
     assert len(clips) == 30
     for trial in range(3):
         idx = ev.source.subset(clips, trial)

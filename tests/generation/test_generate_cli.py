@@ -11,8 +11,7 @@ import pytest
 import soundfile as sf
 from gen_helpers import train_tiny_checkpoint, write_click_song
 
-from dgsdp.cli.config import PROJECT_ROOT
-from dgsdp.cli.config import compose_config
+from dgsdp.cli.config import PROJECT_ROOT, compose_config
 from dgsdp.cli.generate import generate
 from dgsdp.editing import load_motion_file
 from dgsdp.errors import ConfigError, DataError

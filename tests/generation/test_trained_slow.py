@@ -9,10 +9,9 @@ from hydra import compose, initialize_config_dir
 from dgsdp.cli.config import CONFIG_DIR
 from dgsdp.editing import load_motion_file
 from dgsdp.generation import DanceGenerator, WindowLayout
-from dgsdp.sampling import GuidanceSettings, SamplingSettings
 from dgsdp.metrics import GenreClassifier, geometric_features, kinetic_features
 from dgsdp.motion import pose_to_joints
-from dgsdp.sampling import Guidance
+from dgsdp.sampling import GuidanceSettings, SamplingSettings
 
 pytestmark = pytest.mark.slow
 

@@ -3,12 +3,11 @@
 from pathlib import Path
 
 import pytest
-from hydra.utils import instantiate
 
 from dgsdp.cli.config import CONFIG_DIR, compose_config
 from dgsdp.cli.train import audio_encoder_from_config, style_embedder_from_config
-from dgsdp.training.spec import RunSpec
 from dgsdp.training import DanceDiffusion
+from dgsdp.training.spec import RunSpec
 
 EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
 PAPER_ROWS = {
