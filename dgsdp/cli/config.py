@@ -9,6 +9,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
+from dgsdp.cli.schema import register_schemas
 from dgsdp.errors import ConfigError
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
@@ -16,6 +17,7 @@ CONFIG_DIR = Path(__file__).resolve().parents[1] / "conf"
 
 if not OmegaConf.has_resolver("dgsdp_root"):
     OmegaConf.register_new_resolver("dgsdp_root", lambda: str(PROJECT_ROOT))
+register_schemas()
 
 
 @contextlib.contextmanager

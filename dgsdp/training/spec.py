@@ -21,11 +21,16 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from dgsdp.errors import CheckpointError, ConfigError
-from dgsdp.registry import Source, build, check_plain
+from dgsdp.registry import Kind, Source, build, check_plain, resolve
 
 SPEC_FORMAT = 2
 # Stored-config keys that name where to write or which device to use: never taken from a checkpoint.
 LOCAL_KEYS = ("cache_dir", "device")
+# The buildable parts of a run and the registry kind each must be.
+PART_KINDS: dict[str, Kind] = {
+    "model": "model", "diffusion": "diffusion", "loss": "loss", "optimizer": "optimizer", "audio": "audio",
+    "style": "style",
+}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -158,6 +163,10 @@ class RunSpec:
                 )
             return value
 
+        for section, kind in PART_KINDS.items():  # refuse a foreign class before looking at anything else
+            node = data.get(section)
+            if isinstance(node, Mapping) and "_target_" in node:
+                resolve(kind, node["_target_"], section, "checkpoint")
         cond = need(data, "conditioning", dict, "")
         try:
             conditioning = Conditioning(
