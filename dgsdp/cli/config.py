@@ -1,4 +1,4 @@
-"""Config helpers shared by the entry points: the project root resolver and turning configs into parts."""
+"""Config helpers shared by the entry points: composing the shipped configs and turning configs into parts."""
 
 from __future__ import annotations
 
@@ -11,12 +11,9 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from dgsdp.audio import AudioEncoder
 from dgsdp.errors import ConfigError
+from dgsdp.resources import CONFIG_DIR, CONFIG_MODULE, CONFIG_PATH, register_resolvers  # noqa: F401 (re-exported)
 
-PROJECT_ROOT = Path(__file__).resolve().parents[2]
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "conf"
-
-if not OmegaConf.has_resolver("dgsdp_root"):
-    OmegaConf.register_new_resolver("dgsdp_root", lambda: str(PROJECT_ROOT))
+register_resolvers()
 
 
 def compose_config(
@@ -25,12 +22,12 @@ def compose_config(
     """Compose a config as the entry point would, with Hydra's runtime values set (for notebooks and tests).
 
     ``output_dir`` stands for the run folder Hydra would create (``paths.output_dir``)."""
-    from hydra import compose, initialize_config_dir
+    from hydra import compose, initialize_config_module
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.hydra_config import HydraConfig
 
     GlobalHydra.instance().clear()
-    with initialize_config_dir(str(CONFIG_DIR), version_base="1.3"):
+    with initialize_config_module(CONFIG_MODULE, version_base="1.3"):
         cfg = compose(config_name, overrides=list(overrides), return_hydra_config=True)
     if output_dir is not None:
         with open_dict(cfg):

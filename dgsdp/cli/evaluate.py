@@ -16,7 +16,7 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from dgsdp.cli.config import CONFIG_DIR, compose_config
+from dgsdp.cli.config import CONFIG_PATH, compose_config
 from dgsdp.errors import ConfigError, DgsdpError
 from dgsdp.evaluation.protocols import ProtocolSpec
 from dgsdp.evaluation.results import log_results, write_results
@@ -152,7 +152,7 @@ def evaluate_after_training(train_cfg: DictConfig, checkpoint: str, groups: dict
     return out
 
 
-@hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="evaluate")
+@hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="evaluate")
 def main(cfg: DictConfig) -> None:
     try:
         result = evaluate(cfg)

@@ -13,7 +13,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from dgsdp.cli.config import CONFIG_DIR, audio_encoder_from_config, build_hparams
+from dgsdp.cli.config import CONFIG_PATH, audio_encoder_from_config, build_hparams
 from dgsdp.errors import ConfigError, DgsdpError
 from dgsdp.training.module import DanceDiffusion, check_compatible, plain
 from dgsdp.utils.io import atomic_write_text
@@ -102,7 +102,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     return result
 
 
-@hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="train")
+@hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="train")
 def main(cfg: DictConfig) -> float | None:
     try:
         result = train(cfg)

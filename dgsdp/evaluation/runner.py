@@ -52,11 +52,12 @@ from dgsdp.metrics import (
     music_beats_from_features,
     pfc,
 )
+from dgsdp.resources import CONFIG_DIR
 from dgsdp.sampling import Guidance
 
 log = logging.getLogger(__name__)
 
-LIBROSA_CONFIG = Path(__file__).resolve().parents[1] / "conf" / "audio" / "librosa.yaml"
+LIBROSA_CONFIG = CONFIG_DIR / "audio" / "librosa.yaml"
 ALL_SPLITS = ("train", "val", "test")
 
 

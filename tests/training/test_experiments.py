@@ -5,7 +5,8 @@ from pathlib import Path
 import pytest
 from hydra.utils import instantiate
 
-from dgsdp.cli.config import CONFIG_DIR, audio_encoder_from_config, build_hparams, compose_config
+from dgsdp.cli.config import audio_encoder_from_config, build_hparams, compose_config
+from dgsdp.resources import CONFIG_DIR
 from dgsdp.training import DanceDiffusion
 
 EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
