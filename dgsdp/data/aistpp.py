@@ -42,10 +42,6 @@ class SequenceName:
     music_id: str  # e.g. "mBR0"
     choreography: str
 
-    @property
-    def tempo_bpm(self) -> float:
-        return music_tempo_bpm(self.music_id)
-
 
 def parse_name(name: str) -> SequenceName:
     m = NAME_PATTERN.match(name)
