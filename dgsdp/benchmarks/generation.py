@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import torch
 from omegaconf import OmegaConf
 
-from dgsdp.cli.config import CONFIG_DIR
 from dgsdp.generation.longform import sample_long
+from dgsdp.resources import CONFIG_DIR
 from dgsdp.sampling import Guidance
 from dgsdp.training.module import DanceDiffusion
 

@@ -16,7 +16,7 @@ import time
 import torch
 from omegaconf import OmegaConf
 
-from dgsdp.cli.config import CONFIG_DIR
+from dgsdp.resources import CONFIG_DIR
 from dgsdp.training.module import DanceDiffusion
 
 PEAK_BF16_TFLOPS = {"H100": 989.0, "H200": 989.0, "A100": 312.0, "A6000": 155.0, "L40": 181.0}

@@ -11,12 +11,9 @@ from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
 from dgsdp.cli.schema import register_schemas
 from dgsdp.errors import ConfigError
+from dgsdp.resources import CONFIG_DIR, CONFIG_MODULE, CONFIG_PATH, register_resolvers  # noqa: F401 (re-exported)
 
-PROJECT_ROOT = Path(__file__).resolve().parents[2]
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "conf"
-
-if not OmegaConf.has_resolver("dgsdp_root"):
-    OmegaConf.register_new_resolver("dgsdp_root", lambda: str(PROJECT_ROOT))
+register_resolvers()
 register_schemas()
 
 
@@ -42,7 +39,7 @@ def compose_config(
 
     Safe inside a running Hydra job (evaluation after training): Hydra's global state is backed up and
     restored by its ``initialize`` context, and the job's HydraConfig is left as it was."""
-    from hydra import compose, initialize, initialize_config_dir
+    from hydra import compose, initialize, initialize_config_module
 
     if config_name == "generate":
         from dgsdp.cli.generate import CONFIG_NAME, generate_configs
@@ -50,7 +47,7 @@ def compose_config(
         with generate_configs(), initialize(version_base="1.3", config_path=None):
             cfg = compose(CONFIG_NAME, overrides=list(overrides), return_hydra_config=True)
     else:
-        with initialize_config_dir(str(CONFIG_DIR), version_base="1.3"):
+        with initialize_config_module(CONFIG_MODULE, version_base="1.3"):
             cfg = compose(config_name, overrides=list(overrides), return_hydra_config=True)
     with read_write(cfg), open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(output_dir) if output_dir is not None else cfg.hydra.run.dir

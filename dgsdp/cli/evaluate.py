@@ -14,7 +14,7 @@ import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from dgsdp.cli.config import CONFIG_DIR, compose_config
+from dgsdp.cli.config import CONFIG_PATH, compose_config
 from dgsdp.cli.train import run_main
 from dgsdp.errors import ConfigError
 from dgsdp.evaluation.protocols import ProtocolSpec
@@ -145,7 +145,7 @@ def evaluate_after_training(train_cfg: DictConfig, checkpoint: str, groups: dict
     return out
 
 
-@hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="evaluate")
+@hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="evaluate")
 def main(cfg: DictConfig) -> None:
     result = run_main(evaluate, cfg)
     print(result["paths"]["markdown"].read_text())

@@ -1,6 +1,6 @@
 """``python -m dgsdp.sweep <table> [--jobs N] [--dry-run] [overrides ...]``: one paper table as a Hydra multirun.
 
-A sweep file (``sweeps/<table>.yaml``) is a global config appended to the training config: it names the table
+A sweep file (``<table>.yaml`` in the shipped ``dgsdp/sweeps/``, or any path) is a global config appended to the training config: it names the table
 (``sweep_name``), the evaluation protocol run after training (``evaluate``) and the grid in
 ``hydra.sweeper.params`` (experiment rows x seeds). This launcher puts the sweep folder on Hydra's search path,
 checks the grid before launching (Hydra's ``glob()`` matching nothing would silently launch zero jobs and exit 0),
@@ -21,10 +21,9 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-from dgsdp.cli.config import CONFIG_DIR, PROJECT_ROOT
 from dgsdp.errors import ConfigError
+from dgsdp.resources import CONFIG_DIR, CONFIG_PATH, SWEEPS_DIR, default_log_dir
 
-SWEEPS_DIR = PROJECT_ROOT / "sweeps"
 DRY_RUN_RECORD = "sweep_job.json"
 
 
@@ -125,7 +124,7 @@ def _train_job(cfg: Any) -> None:
 
 
 def _default_sweep_dir(name: str, overrides: list[str]) -> Path:
-    log_dir = PROJECT_ROOT / "outputs"
+    log_dir = default_log_dir()
     for line in overrides:
         if line.startswith("paths.log_dir="):
             log_dir = Path(line.split("=", 1)[1]).expanduser()
@@ -152,7 +151,7 @@ def launch(sweep: str, overrides: list[str] | None = None, *, jobs: int = 1, dry
         "dgsdp.sweep", "-m", f"hydra.searchpath=[file://{sweep_file.parent.parent}]",
         f"+{sweep_file.parent.name}={sweep_file.stem}", *overrides,
     ]  # fmt: skip
-    task = hydra_main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="train")(
+    task = hydra_main(version_base="1.3", config_path=CONFIG_PATH, config_name="train")(
         _record_job if dry_run else _train_job
     )
     saved_argv = sys.argv
@@ -174,7 +173,7 @@ def launch(sweep: str, overrides: list[str] | None = None, *, jobs: int = 1, dry
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog="python -m dgsdp.sweep",
-        description="Train and evaluate every row of a paper table (a sweep file in sweeps/) as a Hydra multirun.",
+        description="Train and evaluate every row of a paper table (a shipped sweep file or a .yaml) as a Hydra multirun.",
         epilog="Examples: python -m dgsdp.sweep table4 --jobs 2 | python -m dgsdp.sweep table1 debug=tiny "
         "data.root=/data/synthetic | python -m dgsdp.sweep table5 hydra/launcher=submitit_slurm "
         "hydra.launcher.partition=gpu",

@@ -19,7 +19,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from dgsdp.cli.config import CONFIG_DIR, as_list, check_options
+from dgsdp.cli.config import CONFIG_PATH, as_list, check_options
 from dgsdp.errors import CheckpointError, ConfigError, DgsdpError
 from dgsdp.registry import build
 from dgsdp.training.module import DanceDiffusion, read_checkpoint
@@ -174,7 +174,7 @@ def run_main(task: Any, cfg: DictConfig) -> Any:
         raise SystemExit(f"error: {e}") from None
 
 
-@hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="train")
+@hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="train")
 def main(cfg: DictConfig) -> float | None:
     result = run_main(train, cfg)
     if "checkpoint" in result:

@@ -3,8 +3,8 @@
 The same code reads the real AIST++ (point ``data.root`` at it) and the synthetic dataset that
 :mod:`dgsdp.data.synthetic` writes in the same layout.
 
-Split lists are looked up in ``<root>/splits/``, then ``<root>/``, then the official lists shipped in the
-project's ``data/aistpp_splits/`` folder.
+Split lists are looked up in ``<root>/splits/``, then ``<root>/``, then the official lists shipped with the
+package (``dgsdp/resources/aistpp_splits/``).
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ import torch
 from dgsdp.audio.tempo import tempo_from_music_id
 from dgsdp.errors import DataError
 from dgsdp.motion import smpl_to_pose
+from dgsdp.resources import AISTPP_SPLITS_DIR as SHIPPED_SPLITS_DIR
 
-SHIPPED_SPLITS_DIR = Path(__file__).resolve().parents[2] / "data" / "aistpp_splits"
 SOURCE_FPS = 60
 NAME_PATTERN = re.compile(
     r"^g(?P<genre>[A-Z]{2})_s(?P<situation>[A-Z]{2})_c(?P<camera>\w+?)_d(?P<dancer>\d+)_"
@@ -41,10 +41,6 @@ class SequenceName:
     dancer: str
     music_id: str  # e.g. "mBR0"
     choreography: str
-
-    @property
-    def tempo_bpm(self) -> float:
-        return music_tempo_bpm(self.music_id)
 
 
 def parse_name(name: str) -> SequenceName:

@@ -24,7 +24,6 @@ FPS = 60
 # Joint indices (SMPL order).
 PELVIS, L_HIP, R_HIP, SPINE1, L_KNEE, R_KNEE, SPINE2, L_ANKLE, R_ANKLE, SPINE3, L_TOE, R_TOE = range(12)
 NECK, L_COLLAR, R_COLLAR, HEAD, L_SHOULDER, R_SHOULDER, L_ELBOW, R_ELBOW, L_WRIST, R_WRIST = range(12, 22)
-SIDES = ("left", "right")
 
 
 @dataclass(frozen=True)

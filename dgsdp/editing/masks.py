@@ -18,7 +18,6 @@ Tasks:
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import torch
@@ -191,8 +190,3 @@ def place_known(
             f"{source} has {n} frames, which does not fit task={task} on {n_frames} frames: give {needed}"
         )
     return known * mask
-
-
-def mask_fraction(mask: torch.Tensor) -> float:
-    """Fraction of the mask's entries that are given (for reports)."""
-    return float(mask.float().mean()) if mask.numel() else math.nan

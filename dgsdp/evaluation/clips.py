@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from dgsdp.audio import AudioEncoder, FeatureCache
-from dgsdp.cli.config import CONFIG_DIR
+from dgsdp.resources import CONFIG_DIR
 from dgsdp.data.aistpp import music_path
 from dgsdp.data.datamodule import Sequence as DanceSequence
 from dgsdp.data.datamodule import load_sequences, window_starts

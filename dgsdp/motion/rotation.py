@@ -60,14 +60,6 @@ def sixd_to_matrix(sixd: torch.Tensor) -> torch.Tensor:
     return torch.stack((b1, b2, b3), dim=-2)
 
 
-def axis_angle_to_6d(rotvec: torch.Tensor) -> torch.Tensor:
-    return matrix_to_6d(axis_angle_to_matrix(rotvec))
-
-
-def sixd_to_axis_angle(sixd: torch.Tensor) -> torch.Tensor:
-    return matrix_to_axis_angle(sixd_to_matrix(sixd))
-
-
 def quaternion_slerp(q0: torch.Tensor, q1: torch.Tensor, weight: torch.Tensor | float) -> torch.Tensor:
     """Element-wise spherical interpolation along the shortest arc.
 

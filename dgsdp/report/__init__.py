@@ -1,5 +1,6 @@
 """Gather evaluated runs into the papers' table layout: rows = configs, columns = metrics, mean ± std over seeds,
-the published numbers beside ours (``data/paper_tables.yaml``). ``python -m dgsdp.report <sweep dir | run dirs>``.
+the published numbers beside ours (``dgsdp/resources/paper_tables.yaml``).
+``python -m dgsdp.report <sweep dir | run dirs>`` (installed: ``dgsdp-report``).
 
 A run's evaluation (``results.json``) gives one value per row and metric (its mean over trials). A report row is
 ``"<run_name>, <evaluation row>"`` (e.g. ``table4_row0, w=2``) or a ground-truth row; its value is the mean and
@@ -21,8 +22,9 @@ import yaml
 from dgsdp.errors import DataError
 from dgsdp.evaluation.protocols import METRICS
 from dgsdp.evaluation.results import RESULTS_JSON, format_value, markdown_table, read_results
+from dgsdp.resources import PAPER_TABLES_FILE
 
-PAPER_TABLES = Path(__file__).resolve().parents[2] / "data" / "paper_tables.yaml"
+PAPER_TABLES = PAPER_TABLES_FILE
 
 
 @dataclass

@@ -18,6 +18,7 @@ import yaml
 
 from dgsdp.errors import ConfigError, DataError
 from dgsdp.registry import register
+from dgsdp.resources import STYLE_PROMPTS_FILE
 from dgsdp.style.text_encoders import TextEncoder, plain_config
 from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
 from dgsdp.utils.io import DiskCache, stable_hash
@@ -25,8 +26,8 @@ from dgsdp.utils.io import DiskCache, stable_hash
 StyleKind = Literal["none", "onehot", "genre", "prompt"]
 STYLE_KINDS: tuple[str, ...] = ("none", "onehot", "genre", "prompt")
 
-DEFAULT_PROMPTS_FILE = Path(__file__).resolve().parents[2] / "data" / "style_prompts" / "aistpp.yaml"
-"""The shipped AIST++ description prompts (in a source checkout)."""
+DEFAULT_PROMPTS_FILE = STYLE_PROMPTS_FILE
+"""The shipped AIST++ description prompts (``dgsdp/resources/style_prompts/aistpp.yaml``)."""
 
 
 class StyleBank:

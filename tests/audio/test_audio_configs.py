@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
 from dgsdp.audio import AUDIO_ENCODERS, EncodecEncoder, JukeboxEncoder, LibrosaEncoder
+from dgsdp.resources import CONFIG_DIR
 
-AUDIO_CONF = Path(__file__).resolve().parents[2] / "dgsdp" / "conf" / "audio"
+AUDIO_CONF = CONFIG_DIR / "audio"
 
 
 def build(name: str, overrides: list[str] | None = None):

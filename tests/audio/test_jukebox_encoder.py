@@ -3,8 +3,8 @@ the optional package jukebox-infer is installed; the released weights when DGSDP
 
 from __future__ import annotations
 
-import importlib.util
 import os
+import sys
 
 import numpy as np
 import pytest
@@ -16,7 +16,6 @@ from dgsdp.audio.jukebox_encoder import select_prior_state, slice_starts, trunca
 from dgsdp.errors import ConfigError, WeightsError
 
 SR = 44100
-HAS_PACKAGE = importlib.util.find_spec("jukebox_infer") is not None
 TINY_VQVAE = dict(width=8, depth=1, emb_width=8, l_bins=64)
 TINY_PRIOR = dict(prior_width=32, prior_depth=3, heads=2, n_ctx=2048, blocks=32, init_scale=1.0)
 
@@ -97,8 +96,11 @@ def test_layer_truncation_and_state_selection():
     assert sorted(kept) == sorted(["prior.x_emb.weight"] + [f"prior.transformer._attn_mods.{i}.w" for i in range(10)])
 
 
-@pytest.mark.skipif(HAS_PACKAGE, reason="only meaningful without jukebox-infer")
-def test_missing_package_names_the_pip_extra():
+def test_missing_package_names_the_pip_extra(monkeypatch):
+    # without jukebox-infer (a None entry in sys.modules makes its import fail, installed or not)
+    for name in [m for m in sys.modules if m == "jukebox_infer" or m.startswith("jukebox_infer.")]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "jukebox_infer", None)
     with pytest.raises(WeightsError, match=r"dgsdp\[jukebox\]"):
         JukeboxEncoder(device="cpu").encode(np.zeros(SR, np.float32), SR)
 

@@ -78,8 +78,8 @@ def train_tiny_checkpoint(tmp, overrides: tuple[str, ...] = ()) -> str:
     """Train the debug=tiny model for a few steps on a hand-made dataset; returns the checkpoint path."""
     from hydra import compose, initialize_config_dir
 
-    from dgsdp.cli.config import CONFIG_DIR
     from dgsdp.cli.train import train
+    from dgsdp.resources import CONFIG_DIR
 
     make_tiny_dataset(tmp / "data")
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):

@@ -11,7 +11,7 @@ import pytest
 import soundfile as sf
 from gen_helpers import train_tiny_checkpoint, write_click_song
 
-from dgsdp.cli.config import PROJECT_ROOT, compose_config
+from dgsdp.cli.config import compose_config
 from dgsdp.cli.generate import generate
 from dgsdp.editing import load_motion_file
 from dgsdp.errors import ConfigError, DataError
@@ -103,9 +103,9 @@ def _first_motion(tmp_path, checkpoint, songs) -> Path:
     return report.written[str(songs["good"])][0]
 
 
-def test_command_line_exit_codes_and_messages(tmp_path, checkpoint, songs):
-    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "offline", "PYTHONPATH": str(PROJECT_ROOT)}
-    cmd = [sys.executable, str(PROJECT_ROOT / "generate.py"), f"checkpoint={checkpoint}",
+def test_command_line_exit_codes_and_messages(tmp_path, checkpoint, songs, repo_root):
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "offline", "PYTHONPATH": str(repo_root)}
+    cmd = [sys.executable, str(repo_root / "generate.py"), f"checkpoint={checkpoint}",
            f"music=[{songs['good']},{songs['broken']}]", "style=BR", "sampling.steps=2", "formats=[npy,pkl]",
            f"output_dir={tmp_path / 'out'}", f"paths.cache_dir={tmp_path / 'cache'}", f"hydra.run.dir={tmp_path}"]  # fmt: skip
     run = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)

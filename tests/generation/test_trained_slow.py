@@ -6,11 +6,11 @@ import torch
 from gen_helpers import write_click_song
 from hydra import compose, initialize_config_dir
 
-from dgsdp.cli.config import CONFIG_DIR
 from dgsdp.editing import load_motion_file
 from dgsdp.generation import DanceGenerator, WindowLayout
 from dgsdp.metrics import GenreClassifier, geometric_features, kinetic_features
 from dgsdp.motion import pose_to_joints
+from dgsdp.resources import CONFIG_DIR
 from dgsdp.sampling import GuidanceSettings, SamplingSettings
 
 pytestmark = pytest.mark.slow

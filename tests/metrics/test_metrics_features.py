@@ -33,7 +33,7 @@ REST_OFFSETS = np.array(
         [-.0887537, -.00865157, -.01010708],
     ]
 )  # fmt: skip
-RWRIST, LWRIST = 21, 20
+RWRIST = 21
 
 
 def rest_pose() -> np.ndarray:

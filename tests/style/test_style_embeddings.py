@@ -11,10 +11,9 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from dgsdp.errors import ConfigError, DataError
+from dgsdp.resources import CONFIG_DIR
 from dgsdp.style.embeddings import DEFAULT_PROMPTS_FILE, StyleBank, StyleEmbedder
 from dgsdp.style.vocab import AISTPP_GENRES
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def shipped_prompts() -> dict[str, list[str]]:
@@ -193,9 +192,9 @@ def test_bank_errors_and_state_dict(tmp_path) -> None:
 
 
 def compose(style: str, text_encoder: str, cache_dir: Path):
-    cfg = OmegaConf.create({"paths": {"root_dir": str(ROOT), "cache_dir": str(cache_dir)}})
-    cfg.text_encoder = OmegaConf.load(ROOT / "conf" / "text_encoder" / f"{text_encoder}.yaml")
-    cfg.style = OmegaConf.load(ROOT / "conf" / "style" / f"{style}.yaml")
+    cfg = OmegaConf.create({"paths": {"cache_dir": str(cache_dir)}})
+    cfg.text_encoder = OmegaConf.load(CONFIG_DIR / "text_encoder" / f"{text_encoder}.yaml")
+    cfg.style = OmegaConf.load(CONFIG_DIR / "style" / f"{style}.yaml")
     return cfg
 
 
@@ -224,7 +223,7 @@ def test_style_configs_instantiate_lazily(style: str, text_encoder: str, dim: in
 
 
 def test_style_injection_configs() -> None:
-    modulation = OmegaConf.load(ROOT / "conf" / "style_injection" / "modulation.yaml")
-    concat = OmegaConf.load(ROOT / "conf" / "style_injection" / "concat.yaml")
+    modulation = OmegaConf.load(CONFIG_DIR / "style_injection" / "modulation.yaml")
+    concat = OmegaConf.load(CONFIG_DIR / "style_injection" / "concat.yaml")
     assert (modulation.mode, modulation.variant, modulation.also_concat) == ("modulation", "official", True)
     assert concat.mode == "concat" and "variant" in concat and "also_concat" in concat

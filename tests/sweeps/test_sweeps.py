@@ -7,7 +7,6 @@ import sys
 
 import pytest
 
-from dgsdp.cli.config import PROJECT_ROOT
 from dgsdp.cli.sweep import SWEEPS_DIR, available_sweeps, launch, sweep_grid
 from dgsdp.errors import ConfigError
 
@@ -56,13 +55,13 @@ def test_a_sweep_matching_no_config_fails_loudly(tmp_path):
         launch("table9", [], dry_run=True)
 
 
-def test_cli_exits_non_zero_for_an_empty_sweep(tmp_path):
+def test_cli_exits_non_zero_for_an_empty_sweep(tmp_path, repo_root):
     (tmp_path / "sweeps").mkdir()
     empty = tmp_path / "sweeps" / "empty.yaml"
     empty.write_text("hydra:\n  sweeper:\n    params:\n      experiment: glob(nothing_*)\n")
     proc = subprocess.run(
         [sys.executable, "-m", "dgsdp.sweep", str(empty), "--dry-run"], cwd=tmp_path, capture_output=True, text=True,
-        env={"PYTHONPATH": str(PROJECT_ROOT), "PATH": "/usr/bin:/bin", "HF_HUB_OFFLINE": "1", "WANDB_MODE": "offline"},
+        env={"PYTHONPATH": str(repo_root), "PATH": "/usr/bin:/bin", "HF_HUB_OFFLINE": "1", "WANDB_MODE": "offline"},
     )  # fmt: skip
     assert proc.returncode != 0 and "matches no config" in proc.stderr
 

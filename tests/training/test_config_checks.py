@@ -8,7 +8,7 @@ import pytest
 import torch
 from test_train import run, tiny_overrides
 
-from dgsdp.cli.config import PROJECT_ROOT, compose_config
+from dgsdp.cli.config import compose_config
 from dgsdp.cli.train import train
 from dgsdp.errors import CheckpointError, ConfigError
 
@@ -63,11 +63,11 @@ def test_unreadable_checkpoint_is_refused_up_front(tmp_path, tiny_synthetic):
     assert not (tmp_path / "none").exists()
 
 
-def test_command_line_error_is_one_line_and_leaves_no_run_folder(tmp_path):
+def test_command_line_error_is_one_line_and_leaves_no_run_folder(tmp_path, repo_root):
     out = tmp_path / "outputs"
-    cmd = [sys.executable, str(PROJECT_ROOT / "train.py"), "model.d_model=0", f"paths.log_dir={out}",
+    cmd = [sys.executable, str(repo_root / "train.py"), "model.d_model=0", f"paths.log_dir={out}",
            f"paths.data_dir={tmp_path / 'data'}"]  # fmt: skip
-    env = {**os.environ, "PYTHONPATH": str(PROJECT_ROOT), "HF_HUB_OFFLINE": "1", "WANDB_MODE": "offline"}
+    env = {**os.environ, "PYTHONPATH": str(repo_root), "HF_HUB_OFFLINE": "1", "WANDB_MODE": "offline"}
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
     assert proc.returncode != 0
     assert "model.d_model must be a positive integer" in proc.stderr

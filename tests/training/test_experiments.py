@@ -4,8 +4,9 @@ from pathlib import Path
 
 import pytest
 
-from dgsdp.cli.config import CONFIG_DIR, compose_config
+from dgsdp.cli.config import compose_config
 from dgsdp.cli.train import audio_encoder_from_config, style_embedder_from_config
+from dgsdp.resources import CONFIG_DIR
 from dgsdp.training import DanceDiffusion
 from dgsdp.training.spec import RunSpec
 

@@ -10,7 +10,7 @@ import pytest
 import torch
 import yaml
 
-from dgsdp.cli.config import PROJECT_ROOT, compose_config
+from dgsdp.cli.config import compose_config
 from dgsdp.cli.train import train
 from dgsdp.errors import ConfigError
 from dgsdp.training import load_checkpoint
@@ -109,15 +109,15 @@ def test_checkpoint_from_other_config_fails_clearly(tmp_path, tiny_synthetic):
         run(tmp_path / "c", tiny_synthetic, f"ckpt_path={tmp_path / 'missing.ckpt'}")
 
 
-def test_killed_run_loses_at_most_the_steps_since_last_checkpoint(tmp_path, tiny_synthetic):
+def test_killed_run_loses_at_most_the_steps_since_last_checkpoint(tmp_path, tiny_synthetic, repo_root):
     """Kill a training process after its first checkpoint, then resume from last.ckpt."""
     out = tmp_path / "run"
     args = [
-        sys.executable, str(PROJECT_ROOT / "train.py"), *tiny_overrides(tiny_synthetic),
+        sys.executable, str(repo_root / "train.py"), *tiny_overrides(tiny_synthetic),
         "trainer.max_steps=100000", "trainer.max_epochs=-1", "trainer.limit_val_batches=0",
         "callbacks.model_checkpoint.every_n_train_steps=2", f"hydra.run.dir={out}",
     ]  # fmt: skip
-    env = {**os.environ, "PYTHONPATH": str(PROJECT_ROOT)}
+    env = {**os.environ, "PYTHONPATH": str(repo_root)}
     proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     last = out / "checkpoints" / "last.ckpt"
     try:
@@ -165,14 +165,14 @@ def test_resumed_run_continues_its_wandb_run(tmp_path, tiny_synthetic, monkeypat
     assert _state(resumed["checkpoint"])["logger_run_ids"]["WandbLogger"] == run_id
 
 
-def test_two_job_multirun_creates_two_wandb_runs(tmp_path, tiny_synthetic):
+def test_two_job_multirun_creates_two_wandb_runs(tmp_path, tiny_synthetic, repo_root):
     sweep = tmp_path / "sweep"
     args = [
-        sys.executable, str(PROJECT_ROOT / "train.py"), "-m", *tiny_overrides(tiny_synthetic),
+        sys.executable, str(repo_root / "train.py"), "-m", *tiny_overrides(tiny_synthetic),
         "logger=wandb", "trainer.max_steps=1", "trainer.limit_val_batches=0", "seed=0,1", "sweep_name=test-sweep",
         f"hydra.sweep.dir={sweep}",
     ]  # fmt: skip
-    env = {**os.environ, "PYTHONPATH": str(PROJECT_ROOT), "WANDB_MODE": "offline"}
+    env = {**os.environ, "PYTHONPATH": str(repo_root), "WANDB_MODE": "offline"}
     done = subprocess.run(args, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     runs = sorted(sweep.glob("*/wandb/offline-run-*"))
