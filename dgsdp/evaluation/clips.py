@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 
 from dgsdp.audio import AudioEncoder, FeatureCache
-from dgsdp.resources import CONFIG_DIR
 from dgsdp.data.aistpp import music_path
 from dgsdp.data.datamodule import Sequence as DanceSequence
 from dgsdp.data.datamodule import load_sequences, window_starts
@@ -17,6 +16,7 @@ from dgsdp.evaluation.features import MODEL_FPS
 from dgsdp.evaluation.protocols import ProtocolSpec
 from dgsdp.evaluation.scoring import WarningLog
 from dgsdp.metrics import music_beats_from_features
+from dgsdp.resources import CONFIG_DIR
 
 ALL_SPLITS = ("train", "val", "test")
 

@@ -283,7 +283,9 @@ class RunSpec:
         from dgsdp.cli.config import CONFIG_DIR
 
         def load(group: str, option: str) -> dict[str, Any]:
-            return OmegaConf.to_container(OmegaConf.load(CONFIG_DIR / group / f"{option}.yaml"), resolve=True)
+            node = OmegaConf.to_container(OmegaConf.load(CONFIG_DIR / group / f"{option}.yaml"), resolve=True)
+            node.pop("defaults", None)  # the group's typed schema: its values are all in the file
+            return node
 
         model_cfg = {**load("model", model), **model_overrides}
         ema_decay = model_cfg.pop("ema_decay")
