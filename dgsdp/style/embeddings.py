@@ -180,9 +180,10 @@ class StyleEmbedder:
         if self._encoder is None:
             if self._encoder_cfg is None:
                 raise ConfigError(f"style kind {self.kind!r} uses no text encoder.")
-            from hydra.utils import instantiate
+            from dgsdp.registry import build
 
-            encoder = instantiate(self._encoder_cfg)
+            # registered classes only, nothing imported: this config may come from a checkpoint
+            encoder = build(self._encoder_cfg, "text_encoder", where="style.text_encoder", source="checkpoint")
             if not isinstance(encoder, TextEncoder):
                 raise ConfigError(f"text_encoder config built a {type(encoder).__name__}, not a TextEncoder.")
             self._encoder = encoder
