@@ -22,7 +22,7 @@ from dgsdp.evaluation.results import log_results, write_results
 from dgsdp.evaluation.runner import Evaluator
 from dgsdp.generation.pipeline import DanceGenerator
 from dgsdp.sampling import SamplingSettings
-from dgsdp.training.module import load_checkpoint, read_checkpoint
+from dgsdp.training.module import load_checkpoint, read_checkpoint, wandb_run_id
 from dgsdp.training.spec import RunSpec
 from dgsdp.utils.device import resolve_device
 
@@ -134,7 +134,7 @@ def evaluate_after_training(train_cfg: DictConfig, checkpoint: str, groups: dict
         base.append(f"logger={logger}")
     if "wandb" in (train_cfg.get("logger") or {}):
         ckpt = read_checkpoint(checkpoint)
-        run_id = (ckpt.get("logger_run_ids") or {}).get("WandbLogger")
+        run_id = wandb_run_id(ckpt)
         if run_id:
             base += [f"+logger.wandb.id={_quote(run_id)}", "+logger.wandb.resume=allow"]
     out: dict[str, str] = {}

@@ -22,7 +22,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from dgsdp.cli.config import CONFIG_PATH, as_list, check_options
 from dgsdp.errors import CheckpointError, ConfigError, DgsdpError
 from dgsdp.registry import build
-from dgsdp.training.module import DanceDiffusion, read_checkpoint
+from dgsdp.training.module import DanceDiffusion, read_checkpoint, wandb_run_id
 from dgsdp.training.spec import RunSpec
 from dgsdp.utils.io import atomic_write_text
 
@@ -84,7 +84,7 @@ def _resume_logger_ids(cfg: DictConfig, ckpt: dict[str, Any]) -> None:
     """On resume, continue the same wandb run (its id is stored in the checkpoint)."""
     if "wandb" not in (cfg.get("logger") or {}):
         return
-    run_id = (ckpt.get("logger_run_ids") or {}).get("WandbLogger")
+    run_id = wandb_run_id(ckpt)
     if run_id:
         with open_dict(cfg):
             cfg.logger.wandb.id = str(run_id)

@@ -161,6 +161,16 @@ def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     return ckpt
 
 
+def wandb_run_id(checkpoint: Mapping[str, Any]) -> str | None:
+    """The wandb run id a checkpoint's run logged to (to continue that run), if it is a plain id."""
+    import re
+
+    run_id = (checkpoint.get("logger_run_ids") or {}).get("WandbLogger")
+    if isinstance(run_id, str) and re.fullmatch(r"[A-Za-z0-9_-]{1,64}", run_id):
+        return run_id
+    return None  # absent, or not an id (the file is data: never used as a path or an override)
+
+
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> DanceDiffusion:
     """Rebuild a trained model from a checkpoint (plain tensors + its run spec as data), EMA weights included."""
     ckpt = read_checkpoint(path, map_location)
