@@ -9,7 +9,10 @@ other's results; the model runs one request at a time from a queue.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import html
 import logging
+import math
 import os
 import re
 import shutil
@@ -23,8 +26,10 @@ os.environ.setdefault("GRADIO_ANALYTICS_ENABLED", "False")
 
 import gradio as gr  # noqa: E402
 import numpy as np  # noqa: E402
+import soundfile as sf  # noqa: E402
 
 from dgsdp.errors import AudioError, ConfigError, DgsdpError  # noqa: E402
+from dgsdp.generation import parse_schedule  # noqa: E402
 from dgsdp.studio import engine as eng  # noqa: E402
 from dgsdp.studio.viewer import CSS_TEMPLATE, HTML_TEMPLATE, JS_ON_LOAD, viewer_value, write_joints_json  # noqa: E402
 from dgsdp.style import AISTPP_GENRES  # noqa: E402
@@ -112,6 +117,33 @@ def style_text(genre: str | None, free_text: str | None, rows: Any) -> str | Non
     return None
 
 
+SPAN_COLOURS = ("#e8a33d", "#4c8bd6", "#5bb36b", "#c4577a", "#8a6cc9", "#3fb3b0")
+
+
+def timeline_html(spans: list[Any], song_seconds: float | None) -> str:
+    """A bar along the song with one coloured block per span (gaps take the nearest span's style)."""
+    finite = [s.end_s for s in spans if math.isfinite(s.end_s)] + [s.start_s for s in spans]
+    total = song_seconds or max(finite) * 1.25 or 10.0
+    blocks = []
+    for i, span in enumerate(spans):
+        end = min(span.end_s, total)
+        if end <= span.start_s:
+            continue
+        left, width = 100 * span.start_s / total, 100 * (end - span.start_s) / total
+        label = html.escape(f"{span.start_s:g}-{'end' if not math.isfinite(span.end_s) else f'{span.end_s:g}'} s: "
+                            f"{span.style}")  # fmt: skip
+        blocks.append(
+            f'<div title="{label}" style="position:absolute;left:{left:.2f}%;width:{width:.2f}%;top:0;bottom:0;'
+            f"background:{SPAN_COLOURS[i % len(SPAN_COLOURS)]};overflow:hidden;white-space:nowrap;font-size:12px;"
+            f'color:#fff;padding:3px 4px;box-sizing:border-box;border-right:1px solid #fff">{label}</div>'
+        )
+    length = f"{total:.1f} s" if song_seconds else "song length unknown: upload the song to see it to scale"
+    return (
+        '<div class="dgsdp-timeline" style="position:relative;height:24px;background:#e6e8ec;border-radius:4px;'
+        f'overflow:hidden">{"".join(blocks)}</div><div style="font-size:12px;color:#667">0 s ... {length}</div>'
+    )
+
+
 def _safe_name(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_")[:60] or "song"
 
@@ -191,11 +223,20 @@ class Studio:
         value = genre if genre in genres else genres[0]
         return gr.update(choices=genres, value=value), f"Loaded {checkpoint}."
 
-    def on_timeline(self, rows: Any) -> str:
+    def on_timeline(self, rows: Any, song: str | None) -> tuple[str, str]:
+        """The schedule string of the timeline rows and a bar drawing the spans along the song."""
         try:
-            return schedule_text(rows) or "(no schedule: the style above is used for the whole song)"
+            text = schedule_text(rows)
         except DgsdpError as e:
-            return f"error: {e}"
+            return f"error: {e}", ""
+        if not text:
+            return "(no schedule: the style above is used for the whole song)", ""
+        seconds = None
+        if song:
+            with contextlib.suppress(Exception):  # an unreadable song is reported when generating
+                info = sf.info(song)
+                seconds = info.frames / info.samplerate
+        return text, timeline_html(parse_schedule(text), seconds)
 
     def run(
         self,
@@ -305,6 +346,7 @@ def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[g
                         row_count=1, interactive=True, label="Spans (seconds)", elem_id="timeline",
                     )  # fmt: skip
                     schedule_preview = gr.Textbox(label="Schedule", interactive=False, elem_id="schedule")
+                    timeline_bar = gr.HTML("", elem_id="timeline-bar")
                 with gr.Accordion("Sampling", open=False):
                     music_w = gr.Slider(0, 5, value=2.0, step=0.1, label="Music guidance")
                     style_w = gr.Slider(
@@ -332,13 +374,15 @@ def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[g
                         range_start = gr.Number(value=2.0, label="Range start (s)")
                         range_end = gr.Number(value=4.0, label="Range end (s)")
                     apply_edit = gr.Button("Apply edit", elem_id="apply-edit")
-                downloads = gr.File(label="Downloads: AIST++ pkl, BVH, GLB, mp4, npy", file_count="multiple",
+                kinds = "AIST++ pkl, BVH, GLB, mp4, npy" if eng.glb_available() else "AIST++ pkl, BVH, mp4, npy"
+                downloads = gr.File(label=f"Downloads: {kinds}", file_count="multiple",
                                     interactive=False, elem_id="downloads")  # fmt: skip
 
         settings = [checkpoint, genre, free_text, rows, music_w, style_w, sampler, steps, seed, video]
         outputs = [viewer, downloads, current, status]
         example.change(studio.on_example, [example], [song])
-        rows.change(studio.on_timeline, [rows], [schedule_preview])
+        rows.change(studio.on_timeline, [rows, song], [schedule_preview, timeline_bar])
+        song.change(studio.on_timeline, [rows, song], [schedule_preview, timeline_bar])
         checkpoint.change(studio.on_checkpoint, [checkpoint, genre], [genre, model_status],
                           concurrency_id="model", concurrency_limit=1)  # fmt: skip
         demo.load(studio.on_checkpoint, [checkpoint, genre], [genre, model_status], concurrency_id="model")

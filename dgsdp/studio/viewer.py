@@ -110,8 +110,11 @@ function draw(frame) {
   const d = state.data, n = d.n_joints;
   const pts = [];
   for (let j = 0; j < n; j++) pts.push(jointAt(frame, j));
+  // the camera follows the pelvis over the floor and looks at the middle between the floor and the top joint
   const pelvis = pts[0];
-  const goal = [pelvis[0], pelvis[1], d.floor_z + 0.9];
+  let top = d.floor_z + 1.6;
+  for (const p of pts) top = Math.max(top, p[2]);
+  const goal = [pelvis[0], pelvis[1], 0.5 * (d.floor_z + top)];
   if (!state.target) state.target = goal.slice();
   for (let k = 0; k < 3; k++) state.target[k] += 0.15 * (goal[k] - state.target[k]);
   const cam = { target: state.target, yaw: state.yaw, pitch: state.pitch, dist: state.dist };

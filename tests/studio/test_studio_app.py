@@ -1,9 +1,12 @@
 """The studio's handlers without a browser: timeline to schedule, edits mapped to editing tasks, errors, folders."""
 
 import json
+import os
+import re
 
 import numpy as np
 import pytest
+import soundfile as sf
 import torch
 
 pytest.importorskip("gradio", reason="the studio needs Gradio: pip install -e '.[studio]'")
@@ -84,8 +87,6 @@ def test_command_line_defaults_to_this_machine_only(tmp_path):
     for i, p in enumerate((old, new)):
         p.parent.mkdir(parents=True)
         p.write_bytes(b"x")
-        import os
-
         os.utime(p, (1000 + i, 1000 + i))
     (tmp_path / "a" / "checkpoints" / "epoch=1.ckpt").write_bytes(b"x")
     assert find_checkpoints(tmp_path) == [str(new), str(old)]
@@ -192,7 +193,15 @@ def test_errors_are_one_clear_message(studio, studio_songs, tmp_path):
 def test_example_songs_are_synthesised_locally(studio):
     path = studio.on_example("Krump")
     assert path.endswith("example_KR.wav")
-    import soundfile as sf
-
     info = sf.info(path)
     assert abs(info.frames / info.samplerate - 10.0) < 1e-3
+
+
+def test_timeline_bar_draws_the_spans_along_the_song(studio, studio_songs):
+    text, bar = studio.on_timeline([[0, "1", "krump"], [1, "end", "house"]], str(studio_songs["three"]))
+    assert text == '0-1: "krump"; 1-end: "house"'
+    widths = [float(w) for w in re.findall(r"width:([\d.]+)%", bar)]
+    assert widths == pytest.approx([100 / 3, 200 / 3], abs=0.01)  # 1 s and 2 s of a 3 s song
+    assert "0-1 s: krump" in bar and "1-end s: house" in bar
+    text, bar = studio.on_timeline([[0, "1", ""]], None)
+    assert text.startswith("error: the timeline row 0-1 has no style") and bar == ""
