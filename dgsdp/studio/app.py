@@ -265,10 +265,8 @@ class Studio:
         label = f"{song.stem}  |  {dance.style}" if dance.style else song.stem
         value = viewer_value(_file_url(joints_path), _file_url(song), len(dance.joints), dance.fps, label)
         state = {"motion": str(npy), "song": str(song), "fps": dance.fps, "checkpoint": request.checkpoint}
-        status = (
-            f"{len(dance.joints)} frames ({seconds:.1f} s) generated in {elapsed:.1f} s; "
-            f"files in {folder.relative_to(self.work_dir.parent) if self.work_dir.parent in folder.parents else folder}"
-        )
+        shown = folder.relative_to(self.work_dir.parent)  # e.g. studio/runs/<time>-<id>
+        status = f"{len(dance.joints)} frames ({seconds:.1f} s) generated in {elapsed:.1f} s; files in {shown}"
         return value, [str(f) for f in dance.files], state, status
 
     def on_generate(
@@ -293,6 +291,8 @@ class Studio:
             if not current:
                 raise ConfigError("generate a dance first; edits change the current dance")
             kind = EDIT_LABELS.get(edit_label, edit_label)
+            if not Path(current["motion"]).is_file():
+                raise ConfigError("the current dance's files were removed from the server; generate a new dance")
             motion = np.load(current["motion"], allow_pickle=False)
             edit = eng.Edit(
                 kind=kind, motion=motion, keyframe_seconds=eng.parse_seconds(keyframe_text),

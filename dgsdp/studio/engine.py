@@ -34,7 +34,7 @@ EDITS = ("none", "upper_body", "lower_body", "keyframes", "continue", "range")
 
 def glb_available() -> bool:
     """Whether this install can write GLB files (``write_motion(..., formats=[..., "glb"])``)."""
-    return any("glb" in name.lower() for name in dir(dgsdp.export))
+    return any("glb" in name.lower() or "gltf" in name.lower() for name in dir(dgsdp.export))
 
 
 def output_formats(video: bool = True) -> list[str]:
