@@ -371,8 +371,8 @@ def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[g
                         keyframes = gr.Textbox(label="Keyframes (seconds)", placeholder="1.5, 4, 8")
                         seed_seconds = gr.Number(value=1.0, label="Continue: seconds kept from the end")
                     with gr.Row():
-                        range_start = gr.Number(value=2.0, label="Range start (s)")
-                        range_end = gr.Number(value=4.0, label="Range end (s)")
+                        range_start = gr.Number(value=2.0, label="Range start (s)", elem_id="range-start")
+                        range_end = gr.Number(value=4.0, label="Range end (s)", elem_id="range-end")
                     apply_edit = gr.Button("Apply edit", elem_id="apply-edit")
                 kinds = "AIST++ pkl, BVH, GLB, mp4, npy" if eng.glb_available() else "AIST++ pkl, BVH, mp4, npy"
                 downloads = gr.File(label=f"Downloads: {kinds}", file_count="multiple",

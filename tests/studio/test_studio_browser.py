@@ -118,7 +118,23 @@ def test_generate_play_and_download(page, studio_url, studio_songs):
     assert len(mocap.get_joints_names()) == 24
     with page.expect_download() as info:
         page.click("#downloads a[href$='.npy']")
-    assert np.load(info.value.path()).shape == (90, 151)
+    before = np.load(info.value.path())
+    assert before.shape == (90, 151)
+
+    # an edit from the page: regenerate 1-2 s, keep the rest of the current dance
+    status = page.inner_text("#status")
+    page.click("text=Edit the current dance")
+    page.click("#edit-kind label:has-text('Regenerate a time range')")
+    page.fill("#range-start input", "1")
+    page.fill("#range-end input", "2")
+    page.click("#apply-edit")
+    page.wait_for_function(f"document.querySelector('#status').innerText !== {status!r}", timeout=GENERATE_TIMEOUT_MS)
+    with page.expect_download() as info:
+        page.click("#downloads a[href$='.npy']")
+    after = np.load(info.value.path())
+    np.testing.assert_allclose(after[:30], before[:30], atol=1e-4)
+    np.testing.assert_allclose(after[60:], before[60:], atol=1e-4)
+    assert np.abs(after[30:60] - before[30:60]).max() > 1e-2
     assert outside == [], f"the page asked for outside resources: {outside}"
 
 
