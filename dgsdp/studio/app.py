@@ -1,0 +1,451 @@
+"""The studio page (Gradio): upload a song, choose a style and a model, generate, watch, edit, download.
+
+Everything is served from this machine: the theme uses system fonts, analytics are off, and the 3D viewer is
+plain JavaScript (:mod:`dgsdp.studio.viewer`). Each generation writes into its own folder under the studio's
+work folder, and each browser session keeps its own current dance, so users sharing a studio never see each
+other's results; the model runs one request at a time from a queue.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import html
+import logging
+import math
+import os
+import re
+import shutil
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("GRADIO_ANALYTICS_ENABLED", "False")
+
+import gradio as gr  # noqa: E402
+import numpy as np  # noqa: E402
+import soundfile as sf  # noqa: E402
+
+from dgsdp.errors import AudioError, ConfigError, DgsdpError  # noqa: E402
+from dgsdp.generation import parse_schedule  # noqa: E402
+from dgsdp.studio import engine as eng  # noqa: E402
+from dgsdp.studio.viewer import CSS_TEMPLATE, HTML_TEMPLATE, JS_ON_LOAD, viewer_value, write_joints_json  # noqa: E402
+from dgsdp.style import AISTPP_GENRES  # noqa: E402
+
+log = logging.getLogger(__name__)
+
+AUDIO_TYPES = (".wav", ".mp3", ".ogg", ".flac")
+EDIT_LABELS = {
+    "Keep the lower body, regenerate the upper body": "upper_body",
+    "Keep the upper body, regenerate the lower body": "lower_body",
+    "Keep poses at keyframes (seconds), regenerate the rest": "keyframes",
+    "Continue from the current dance (on the song above)": "continue",
+    "Regenerate a time range": "range",
+}
+SCHEDULE_HEADERS = ["start (s)", "end (s, or end)", "style"]
+
+
+@dataclass
+class StudioConfig:
+    """Command-line settings of the studio."""
+
+    checkpoint: str | None = None
+    host: str = "127.0.0.1"
+    port: int = 7860
+    outputs: str = "outputs"  # runs are searched here: <outputs>/**/checkpoints/last.ckpt
+    work_dir: str = "outputs/studio"  # one folder per generation, example songs, feature cache
+    max_upload_mb: float = 50.0
+    max_song_seconds: float = 300.0
+    device: str = "auto"
+    queue_size: int = 16
+    default_steps: int = 50
+
+
+def find_checkpoints(outputs: str | Path) -> list[str]:
+    """``last.ckpt`` of every run under ``outputs``, newest first."""
+    root = Path(outputs)
+    if not root.is_dir():
+        return []
+    found = [p for p in root.glob("**/checkpoints/last.ckpt") if p.is_file()]
+    return [str(p) for p in sorted(found, key=lambda p: p.stat().st_mtime, reverse=True)]
+
+
+def schedule_text(rows: Any) -> str:
+    """The schedule string ``'a-b: style; ...'`` of timeline rows (start, end, style); '' for no rows.
+
+    Empty rows are skipped; ``end`` may be blank or ``end`` (the end of the song). ConfigError for a bad row.
+    """
+    if rows is None:
+        return ""
+    if hasattr(rows, "values") and hasattr(rows, "columns"):  # a pandas DataFrame
+        rows = rows.values.tolist()
+    parts = []
+    for row in rows:
+        cells = ["" if c is None or (isinstance(c, float) and np.isnan(c)) else str(c).strip() for c in list(row)[:3]]
+        cells += [""] * (3 - len(cells))
+        start, end, style = cells
+        if not any(cells):
+            continue
+        if not style:
+            raise ConfigError(f"the timeline row {start or '?'}-{end or 'end'} has no style; type a genre or text")
+        try:
+            start_s = float(start or 0)
+            end_s = None if end.lower() in ("", "end") else float(end)
+        except ValueError:
+            raise ConfigError(
+                f"the timeline row {start}-{end}: times are seconds (numbers), the last end may be 'end'"
+            ) from None
+        if start_s < 0 or (end_s is not None and end_s <= start_s):
+            raise ConfigError(f"the timeline row {start}-{end} must start at 0 s or later and end after it starts")
+        if '"' in style and "'" in style:
+            raise ConfigError(f"the style {style!r} has both kinds of quotes; drop one")
+        quote = "'" if '"' in style else '"'
+        parts.append(f"{start_s:g}-{'end' if end_s is None else f'{end_s:g}'}: {quote}{style}{quote}")
+    return "; ".join(parts)
+
+
+def style_text(genre: str | None, free_text: str | None, rows: Any) -> str | None:
+    """The style to use: the timeline when it has rows, else the free text, else the genre (None: no style)."""
+    schedule = schedule_text(rows)
+    if schedule:
+        return schedule
+    for choice in (free_text, genre):
+        if choice and str(choice).strip():
+            return str(choice).strip()
+    return None
+
+
+SPAN_COLOURS = ("#e8a33d", "#4c8bd6", "#5bb36b", "#c4577a", "#8a6cc9", "#3fb3b0")
+
+
+def timeline_html(spans: list[Any], song_seconds: float | None) -> str:
+    """A bar along the song with one coloured block per span (gaps take the nearest span's style)."""
+    finite = [s.end_s for s in spans if math.isfinite(s.end_s)] + [s.start_s for s in spans]
+    total = song_seconds or max(finite) * 1.25 or 10.0
+    blocks = []
+    for i, span in enumerate(spans):
+        end = min(span.end_s, total)
+        if end <= span.start_s:
+            continue
+        left, width = 100 * span.start_s / total, 100 * (end - span.start_s) / total
+        label = html.escape(f"{span.start_s:g}-{'end' if not math.isfinite(span.end_s) else f'{span.end_s:g}'} s: "
+                            f"{span.style}")  # fmt: skip
+        blocks.append(
+            f'<div title="{label}" style="position:absolute;left:{left:.2f}%;width:{width:.2f}%;top:0;bottom:0;'
+            f"background:{SPAN_COLOURS[i % len(SPAN_COLOURS)]};overflow:hidden;white-space:nowrap;font-size:12px;"
+            f'color:#fff;padding:3px 4px;box-sizing:border-box;border-right:1px solid #fff">{label}</div>'
+        )
+    length = f"{total:.1f} s" if song_seconds else "song length unknown: upload the song to see it to scale"
+    return (
+        '<div class="dgsdp-timeline" style="position:relative;height:24px;background:#e6e8ec;border-radius:4px;'
+        f'overflow:hidden">{"".join(blocks)}</div><div style="font-size:12px;color:#667">0 s ... {length}</div>'
+    )
+
+
+def _safe_name(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_")[:60] or "song"
+
+
+class Studio:
+    """The page's handlers, with the engine and the folders they share."""
+
+    def __init__(self, config: StudioConfig, engine: eng.Engine | None = None) -> None:
+        self.config = config
+        self.work_dir = Path(config.work_dir).expanduser().resolve()
+        self.work_dir.mkdir(parents=True, exist_ok=True)
+        self.engine = engine or eng.Engine(
+            self.work_dir / "cache", device=config.device, max_song_seconds=config.max_song_seconds
+        )
+
+    # --- helpers ----------------------------------------------------------------------------------------------
+    def checkpoints(self) -> list[str]:
+        found = find_checkpoints(self.config.outputs)
+        if self.config.checkpoint:
+            first = str(Path(self.config.checkpoint).expanduser())
+            found = [first] + [c for c in found if Path(c).resolve() != Path(first).resolve()]
+        return found
+
+    def request_folder(self) -> Path:
+        folder = self.work_dir / "runs" / f"{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:8]}"
+        folder.mkdir(parents=True)
+        return folder
+
+    def check_song(self, song: str | None) -> Path:
+        if not song:
+            raise AudioError("upload a song (wav, mp3, ogg or flac) or pick an example song first")
+        path = Path(song)
+        if path.suffix.lower() not in AUDIO_TYPES:
+            raise AudioError(f"{path.name} is not a song this studio reads; upload a wav, mp3, ogg or flac file")
+        if not path.is_file():
+            raise AudioError(f"the song {path.name} is no longer on the server; upload it again")
+        size_mb = path.stat().st_size / 2**20
+        if size_mb > self.config.max_upload_mb:
+            raise AudioError(f"{path.name} is {size_mb:.0f} MB; the limit is {self.config.max_upload_mb:g} MB")
+        return path
+
+    def example_song(self, genre: str) -> str:
+        """A synthetic song in a genre's style (10 s), written once into the work folder."""
+        from dgsdp.data.aistpp import music_tempo_bpm
+        from dgsdp.data.synthetic_music import synthesize_music, wav_bytes
+        from dgsdp.utils.io import atomic_write_bytes
+
+        code = AISTPP_GENRES.codes[AISTPP_GENRES.index(genre)]
+        path = self.work_dir / "examples" / f"example_{code}.wav"
+        if not path.is_file():
+            bpm = music_tempo_bpm(f"m{code}0")
+            audio, _ = synthesize_music(
+                code, bpm, 10.0, first_beat_s=0.25, sample_rate_hz=22050, rng=np.random.default_rng(0)
+            )
+            atomic_write_bytes(path, wav_bytes(audio, 22050))
+        return str(path)
+
+    # --- handlers ---------------------------------------------------------------------------------------------
+    def on_example(self, genre: str | None):
+        if not genre:
+            return gr.update()
+        try:
+            return self.example_song(genre)
+        except DgsdpError as e:
+            raise gr.Error(str(e)) from None
+
+    def on_checkpoint(self, checkpoint: str | None, genre: str | None):
+        """Load the chosen model; list its genres (one clear error for a wrong checkpoint)."""
+        if not checkpoint:
+            return gr.update(), "Choose a checkpoint: a run under the outputs folder or the path of a .ckpt file."
+        try:
+            genres = self.engine.genres(checkpoint)
+        except DgsdpError as e:
+            raise gr.Error(str(e)) from None
+        if not genres:
+            return gr.update(choices=[], value=None), f"Loaded {checkpoint} (a model without style conditioning)."
+        value = genre if genre in genres else genres[0]
+        return gr.update(choices=genres, value=value), f"Loaded {checkpoint}."
+
+    def on_timeline(self, rows: Any, song: str | None) -> tuple[str, str]:
+        """The schedule string of the timeline rows and a bar drawing the spans along the song."""
+        try:
+            text = schedule_text(rows)
+        except DgsdpError as e:
+            return f"error: {e}", ""
+        if not text:
+            return "(no schedule: the style above is used for the whole song)", ""
+        seconds = None
+        if song:
+            with contextlib.suppress(Exception):  # an unreadable song is reported when generating
+                info = sf.info(song)
+                seconds = info.frames / info.samplerate
+        return text, timeline_html(parse_schedule(text), seconds)
+
+    def run(
+        self,
+        request: eng.DanceRequest,
+        progress: gr.Progress,
+    ) -> tuple[str, list[str], dict, str]:
+        """Run one request into a fresh folder; return the viewer value, files, session state and a status line."""
+        folder = self.request_folder()
+        try:
+            song = folder / f"{_safe_name(request.song.stem)}{request.song.suffix.lower()}"
+            shutil.copyfile(request.song, song)
+            request.song = song
+            progress(0.02, desc="loading the model")
+            self.engine.generator(request.checkpoint)
+            progress(0.05, desc="reading the song")
+            seconds = self.engine.song_seconds(request.checkpoint, song)
+            started = time.perf_counter()
+            dance = self.engine.run(request, folder / song.stem, progress=True)
+            elapsed = time.perf_counter() - started
+        except Exception:
+            shutil.rmtree(folder, ignore_errors=True)  # nothing half-written stays behind
+            raise
+        progress(0.98, desc="preparing the viewer")
+        joints_path = write_joints_json(folder / "viewer.json", dance.joints, dance.fps)
+        npy = next(f for f in dance.files if f.suffix == ".npy")
+        label = f"{song.stem}  |  {dance.style}" if dance.style else song.stem
+        value = viewer_value(_file_url(joints_path), _file_url(song), len(dance.joints), dance.fps, label)
+        state = {"motion": str(npy), "song": str(song), "fps": dance.fps, "checkpoint": request.checkpoint}
+        shown = folder.relative_to(self.work_dir.parent)  # e.g. studio/runs/<time>-<id>
+        status = f"{len(dance.joints)} frames ({seconds:.1f} s) generated in {elapsed:.1f} s; files in {shown}"
+        return value, [str(f) for f in dance.files], state, status
+
+    def on_generate(
+        self, song, checkpoint, genre, free_text, rows, music_w, style_w, sampler, steps, seed, video,
+        progress=gr.Progress(track_tqdm=True),
+    ):  # fmt: skip
+        try:
+            request = eng.DanceRequest(
+                checkpoint=str(checkpoint or ""), song=self.check_song(song),
+                style=style_text(genre, free_text, rows), music_weight=float(music_w), style_weight=float(style_w),
+                sampler=str(sampler), steps=int(steps), seed=int(seed), video=bool(video),
+            )  # fmt: skip
+            return self.run(request, progress)
+        except DgsdpError as e:
+            raise gr.Error(str(e)) from None
+
+    def on_edit(
+        self, current, song, checkpoint, genre, free_text, rows, music_w, style_w, sampler, steps, seed, video,
+        edit_label, keyframe_text, seed_seconds, range_start, range_end, progress=gr.Progress(track_tqdm=True),
+    ):  # fmt: skip
+        try:
+            if not current:
+                raise ConfigError("generate a dance first; edits change the current dance")
+            kind = EDIT_LABELS.get(edit_label, edit_label)
+            if not Path(current["motion"]).is_file():
+                raise ConfigError("the current dance's files were removed from the server; generate a new dance")
+            motion = np.load(current["motion"], allow_pickle=False)
+            edit = eng.Edit(
+                kind=kind, motion=motion, keyframe_seconds=eng.parse_seconds(keyframe_text),
+                seed_seconds=float(seed_seconds or 0), start_seconds=float(range_start or 0),
+                end_seconds=float(range_end or 0),
+            )  # fmt: skip
+            # Edits keep the current dance's song; continuing dances on to the song in the upload box.
+            target_song = self.check_song(song) if kind == "continue" else Path(current["song"])
+            request = eng.DanceRequest(
+                checkpoint=str(checkpoint or ""), song=target_song, style=style_text(genre, free_text, rows),
+                music_weight=float(music_w), style_weight=float(style_w), sampler=str(sampler), steps=int(steps),
+                seed=int(seed), video=bool(video), edit=edit,
+            )  # fmt: skip
+            return self.run(request, progress)
+        except DgsdpError as e:
+            raise gr.Error(str(e)) from None
+
+
+def _file_url(path: Path) -> str:
+    return f"/gradio_api/file={path}"
+
+
+def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[gr.Blocks, Studio]:
+    """The studio's Gradio Blocks (not launched) and its handlers."""
+    studio = Studio(config, engine)
+    checkpoints = studio.checkpoints()
+    genres = list(AISTPP_GENRES.names)
+    with gr.Blocks(title="dgsdp studio", analytics_enabled=False) as demo:
+        gr.Markdown(
+            "## dgsdp studio\nA song and a style in, a dance out: watch it with the music, edit it, download it."
+        )
+        current = gr.State(None)
+        with gr.Row():
+            with gr.Column(scale=2, min_width=320):
+                song = gr.File(label="Song (wav, mp3, ogg, flac)", file_types=list(AUDIO_TYPES), type="filepath",
+                               elem_id="song")  # fmt: skip
+                example = gr.Dropdown(genres, value=None, label="...or an example song (synthetic, 10 s)",
+                                      elem_id="example")  # fmt: skip
+                checkpoint = gr.Dropdown(
+                    checkpoints, value=checkpoints[0] if checkpoints else None, allow_custom_value=True,
+                    label="Model (runs under the outputs folder, or type the path of a .ckpt)", elem_id="checkpoint",
+                )  # fmt: skip
+                model_status = gr.Markdown("", elem_id="model-status")
+                with gr.Row():
+                    genre = gr.Dropdown(genres, value=genres[0], label="Genre", elem_id="genre")
+                    free_text = gr.Textbox(label="...or describe the style", placeholder="sharp, powerful krump",
+                                           elem_id="style-text")  # fmt: skip
+                with gr.Accordion("Style timeline (a style per span of the song)", open=False):
+                    rows = gr.Dataframe(
+                        headers=SCHEDULE_HEADERS, datatype=["number", "str", "str"], column_count=3,
+                        row_count=1, interactive=True, label="Spans (seconds)", elem_id="timeline",
+                    )  # fmt: skip
+                    schedule_preview = gr.Textbox(label="Schedule", interactive=False, elem_id="schedule")
+                    timeline_bar = gr.HTML("", elem_id="timeline-bar")
+                with gr.Accordion("Sampling", open=False):
+                    music_w = gr.Slider(0, 5, value=2.0, step=0.1, label="Music guidance")
+                    style_w = gr.Slider(
+                        0, 5, value=1.0, step=0.1, label="Style guidance (models trained with style dropout)"
+                    )
+                    sampler = gr.Radio(["ddim", "ddpm"], value="ddim", label="Sampler")
+                    steps = gr.Slider(1, 1000, value=config.default_steps, step=1, label="Steps (DDIM)",
+                                      elem_id="steps")  # fmt: skip
+                    seed = gr.Number(value=0, precision=0, label="Seed")
+                    video = gr.Checkbox(value=True, label="Render an mp4 video")
+                generate = gr.Button("Generate", variant="primary", elem_id="generate")
+            with gr.Column(scale=3, min_width=420):
+                viewer = gr.HTML(
+                    "", html_template=HTML_TEMPLATE, css_template=CSS_TEMPLATE, js_on_load=JS_ON_LOAD,
+                    elem_id="viewer",
+                )  # fmt: skip
+                status = gr.Markdown("", elem_id="status")
+                with gr.Accordion("Edit the current dance", open=False):
+                    edit_kind = gr.Radio(list(EDIT_LABELS), value=next(iter(EDIT_LABELS)), label="Edit",
+                                         elem_id="edit-kind")  # fmt: skip
+                    with gr.Row():
+                        keyframes = gr.Textbox(label="Keyframes (seconds)", placeholder="1.5, 4, 8")
+                        seed_seconds = gr.Number(value=1.0, label="Continue: seconds kept from the end")
+                    with gr.Row():
+                        range_start = gr.Number(value=2.0, label="Range start (s)", elem_id="range-start")
+                        range_end = gr.Number(value=4.0, label="Range end (s)", elem_id="range-end")
+                    apply_edit = gr.Button("Apply edit", elem_id="apply-edit")
+                kinds = "AIST++ pkl, BVH, GLB, mp4, npy" if eng.glb_available() else "AIST++ pkl, BVH, mp4, npy"
+                downloads = gr.File(label=f"Downloads: {kinds}", file_count="multiple",
+                                    interactive=False, elem_id="downloads")  # fmt: skip
+
+        settings = [checkpoint, genre, free_text, rows, music_w, style_w, sampler, steps, seed, video]
+        outputs = [viewer, downloads, current, status]
+        example.change(studio.on_example, [example], [song])
+        rows.change(studio.on_timeline, [rows, song], [schedule_preview, timeline_bar])
+        song.change(studio.on_timeline, [rows, song], [schedule_preview, timeline_bar])
+        checkpoint.change(studio.on_checkpoint, [checkpoint, genre], [genre, model_status],
+                          concurrency_id="model", concurrency_limit=1)  # fmt: skip
+        demo.load(studio.on_checkpoint, [checkpoint, genre], [genre, model_status], concurrency_id="model")
+        generate.click(studio.on_generate, [song, *settings], outputs, concurrency_id="model", concurrency_limit=1)
+        apply_edit.click(
+            studio.on_edit,
+            [current, song, *settings, edit_kind, keyframes, seed_seconds, range_start, range_end],
+            outputs,
+            concurrency_id="model",
+            concurrency_limit=1,
+        )
+    demo.queue(max_size=config.queue_size, default_concurrency_limit=1)
+    return demo, studio
+
+
+def theme() -> gr.themes.Base:
+    """Gradio's default look with system fonts (the default theme loads web fonts from the internet)."""
+    return gr.themes.Default(
+        font=["ui-sans-serif", "system-ui", "sans-serif"], font_mono=["ui-monospace", "Consolas", "monospace"]
+    )
+
+
+def launch_kwargs(config: StudioConfig, studio: Studio) -> dict[str, Any]:
+    return {
+        "server_name": config.host,
+        "server_port": config.port,
+        "allowed_paths": [str(studio.work_dir)],
+        "max_file_size": f"{config.max_upload_mb:g}mb",
+        "theme": theme(),
+        "ssr_mode": False,
+        "show_error": True,
+        "share": False,
+        "inbrowser": False,
+        "footer_links": [],
+    }
+
+
+def parse_args(argv: list[str] | None = None) -> StudioConfig:
+    defaults = StudioConfig()
+    p = argparse.ArgumentParser(prog="dgsdp-studio", description="The dgsdp dance studio: a local web page.")
+    p.add_argument("--checkpoint", default=None, help="a trained model's .ckpt (default: the newest run's last.ckpt)")
+    p.add_argument("--host", default=defaults.host, help="address to serve on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=int, default=defaults.port, help="port (default 7860)")
+    p.add_argument("--outputs", default=defaults.outputs, help="folder searched for runs (*/checkpoints/last.ckpt)")
+    p.add_argument("--work-dir", default=defaults.work_dir, help="where generated dances are written")
+    p.add_argument("--max-upload-mb", type=float, default=defaults.max_upload_mb, help="largest song upload (MB)")
+    p.add_argument("--max-seconds", type=float, default=defaults.max_song_seconds, help="longest song (seconds)")
+    p.add_argument("--device", default=defaults.device, help="auto, cpu or cuda")
+    p.add_argument("--queue-size", type=int, default=defaults.queue_size, help="requests that may wait in the queue")
+    p.add_argument("--steps", type=int, default=defaults.default_steps, help="default number of DDIM steps")
+    a = p.parse_args(argv)
+    return StudioConfig(
+        checkpoint=a.checkpoint, host=a.host, port=a.port, outputs=a.outputs, work_dir=a.work_dir,
+        max_upload_mb=a.max_upload_mb, max_song_seconds=a.max_seconds, device=a.device, queue_size=a.queue_size,
+        default_steps=a.steps,
+    )  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> None:
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    config = parse_args(argv)
+    if config.checkpoint and not Path(config.checkpoint).expanduser().is_file():
+        raise SystemExit(f"error: checkpoint {config.checkpoint} does not exist; check the path")
+    demo, studio = build_app(config)
+    print(f"dgsdp studio: open http://{config.host}:{config.port} in a browser (Ctrl+C stops it)", flush=True)
+    demo.launch(**launch_kwargs(config, studio))

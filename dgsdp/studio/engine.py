@@ -1,0 +1,214 @@
+"""The studio's one link to the generation pipeline: requests from the page in, dance files out.
+
+Everything the studio does with a model goes through :class:`dgsdp.generation.DanceGenerator` and
+:func:`dgsdp.generation.write_motion` here (the same path as ``python generate.py``); the page code only builds
+:class:`DanceRequest` objects and shows :class:`Dance` results.
+
+Edits of the current dance map to the editing tasks of :mod:`dgsdp.editing.masks`:
+
+- ``upper_body`` / ``lower_body``: regenerate that half, keep the other half of the current dance;
+- ``keyframes``: keep the current dance's poses at the given seconds, regenerate everything else;
+- ``continue``: ``seed_motion`` with the last ``seed_seconds`` of the current dance as the new dance's start;
+- ``range``: regenerate the frames between two times and keep every frame outside them (an in-between over
+  frames: the ``keyframes`` task with every frame outside the range given).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+import dgsdp.export
+from dgsdp.errors import ConfigError
+from dgsdp.generation import DanceGenerator, EditSettings, SamplingSettings, write_motion
+from dgsdp.motion import pose_to_joints
+from dgsdp.sampling import Guidance
+
+EDITS = ("none", "upper_body", "lower_body", "keyframes", "continue", "range")
+
+
+def glb_available() -> bool:
+    """Whether this install can write GLB files (``write_motion(..., formats=[..., "glb"])``)."""
+    return any("glb" in name.lower() or "gltf" in name.lower() for name in dir(dgsdp.export))
+
+
+def output_formats(video: bool = True) -> list[str]:
+    """The files written for every dance: AIST++ pkl, BVH, GLB when available, video (optional) and npy."""
+    formats = ["pkl", "bvh"]
+    if glb_available():
+        formats.append("glb")
+    if video:
+        formats.append("video")
+    return formats + ["npy"]
+
+
+@dataclass
+class Edit:
+    """An edit of an existing dance (``motion`` (T, 151), unnormalised): one of :data:`EDITS`."""
+
+    kind: str
+    motion: torch.Tensor
+    keyframe_seconds: Sequence[float] = ()
+    seed_seconds: float = 1.0
+    start_seconds: float = 0.0
+    end_seconds: float = 0.0
+
+
+@dataclass
+class DanceRequest:
+    """One generation: a song, a style (genre, free text or schedule string), sampling settings, an edit."""
+
+    checkpoint: str
+    song: Path
+    style: str | None
+    music_weight: float = 2.0
+    style_weight: float = 1.0
+    sampler: str = "ddim"
+    steps: int = 50
+    seed: int = 0
+    blend_seconds: float = 2.0
+    edit: Edit | None = None
+    video: bool = True
+
+
+@dataclass
+class Dance:
+    """A generated dance: the motion (T, 151), its joints (T, 24, 3) z-up metres, and the files written."""
+
+    motion: torch.Tensor
+    joints: np.ndarray
+    fps: int
+    song: Path
+    style: str | None
+    files: list[Path] = field(default_factory=list)
+
+
+class Engine:
+    """Loads checkpoints once (one model in memory per path) and runs requests one at a time."""
+
+    def __init__(self, cache_dir: str | Path, device: str = "auto", max_song_seconds: float | None = 600) -> None:
+        self.cache_dir = Path(cache_dir)
+        self.device = device
+        self.max_song_seconds = max_song_seconds
+        self._generators: dict[str, DanceGenerator] = {}
+        self._lock = threading.Lock()
+
+    def generator(self, checkpoint: str) -> DanceGenerator:
+        """The DanceGenerator of a checkpoint (loaded on first use; ConfigError for a bad checkpoint)."""
+        if not checkpoint or not str(checkpoint).strip():
+            raise ConfigError("choose a checkpoint: a run under the outputs folder or the path of a .ckpt file")
+        key = str(Path(str(checkpoint).strip()).expanduser().resolve())
+        with self._lock:
+            if key not in self._generators:
+                self._generators.clear()  # keep one model in memory
+                self._generators[key] = DanceGenerator.from_checkpoint(
+                    key, cache_dir=self.cache_dir, device=self.device, max_song_seconds=self.max_song_seconds
+                )
+            return self._generators[key]
+
+    def genres(self, checkpoint: str) -> list[str]:
+        """Genre names the checkpoint knows (empty for a model without style)."""
+        gen = self.generator(checkpoint)
+        if not gen.style_dim:
+            return []
+        return list(gen.embedder().vocab.names)
+
+    def song_seconds(self, checkpoint: str, song: Path) -> float:
+        """The song's length (AudioError for an unreadable or too long song)."""
+        return self.generator(checkpoint).check_duration(song)
+
+    def run(self, request: DanceRequest, out_base: Path, progress: bool = False) -> Dance:
+        """Generate (or edit) one dance and write its files as ``out_base`` + suffixes."""
+        gen = self.generator(request.checkpoint)
+        method = request.sampler.lower()
+        if method not in ("ddim", "ddpm"):
+            raise ConfigError(f"sampler {request.sampler!r} is not a sampler; use ddim or ddpm")
+        if int(request.steps) < 1:
+            raise ConfigError(f"steps must be at least 1, got {request.steps}")
+        sampling = SamplingSettings(
+            method=method,
+            steps=int(request.steps),
+            guidance=Guidance(float(request.music_weight), float(request.style_weight), edit_cap_below_t=100),
+        )
+        plan = gen.resolve_style(request.style)
+        music, n_frames = gen.music_features(request.song)
+        style = gen.style_frames(plan, n_frames, float(request.blend_seconds))
+        edit = edit_settings(request.edit, n_frames, gen.fps)
+        mask, known = gen.edit_inputs(edit, n_frames)
+        motion = gen.generate(
+            n_frames,
+            music=music,
+            style=style,
+            mask=mask,
+            known=known,
+            sampling=sampling,
+            seed=int(request.seed),
+            progress=progress,
+        )[0]
+        title = f"{request.song.stem} | {plan.text}" if plan.text else request.song.stem
+        files = write_motion(
+            motion,
+            out_base,
+            fps=gen.fps,
+            audio_path=request.song,
+            formats=output_formats(request.video),
+            title=title,
+        )
+        joints = pose_to_joints(motion.double()).float().numpy()
+        return Dance(motion, joints, gen.fps, request.song, plan.text, files)
+
+
+def edit_settings(edit: Edit | None, n_frames: int, fps: int) -> EditSettings:
+    """The editing task for an edit of the current dance on a song of ``n_frames`` frames."""
+    if edit is None or edit.kind == "none":
+        return EditSettings()
+    if edit.kind not in EDITS:
+        raise ConfigError(f"unknown edit {edit.kind!r}; use one of: {', '.join(EDITS)}")
+    motion = torch.as_tensor(edit.motion, dtype=torch.float32)
+    if edit.kind == "continue":
+        seed = int(round(float(edit.seed_seconds) * fps))
+        if not 1 <= seed <= len(motion):
+            raise ConfigError(
+                f"continue from the last {edit.seed_seconds:g} s: give between {1 / fps:.2f} s and the current "
+                f"dance's length ({len(motion) / fps:.1f} s)"
+            )
+        return EditSettings(task="seed_motion", motion=motion[-seed:], seed_frames=min(seed, n_frames))
+    if len(motion) < n_frames:
+        raise ConfigError(
+            f"the current dance has {len(motion)} frames but the song has {n_frames}: edits keep the current "
+            "dance's song; generate a new dance for another song"
+        )
+    if edit.kind in ("upper_body", "lower_body"):
+        return EditSettings(task=edit.kind, motion=motion)
+    if edit.kind == "keyframes":
+        seconds = [float(s) for s in edit.keyframe_seconds]
+        if not seconds:
+            raise ConfigError("give keyframe times in seconds, e.g. 1.5, 4, 8")
+        return EditSettings(task="keyframes", motion=motion, keyframe_seconds=seconds)
+    # range: regenerate [start, end), keep every other frame
+    start, end = float(edit.start_seconds), float(edit.end_seconds)
+    first, last = int(round(start * fps)), int(round(end * fps))
+    if not (0 <= first < last <= n_frames):
+        raise ConfigError(
+            f"the range {start:g}-{end:g} s must lie inside the song (0-{n_frames / fps:.1f} s) with start < end"
+        )
+    kept = [f for f in range(n_frames) if f < first or f >= last]
+    if not kept:
+        raise ConfigError("the range covers the whole dance: press Generate for a new dance instead")
+    return EditSettings(task="keyframes", motion=motion, keyframes=kept)
+
+
+def parse_seconds(text: str) -> list[float]:
+    """Times in seconds from text such as ``"1.5, 4 8"``; ConfigError naming the first bad entry."""
+    values: list[float] = []
+    for item in str(text or "").replace(";", ",").replace(",", " ").split():
+        try:
+            values.append(float(item))
+        except ValueError:
+            raise ConfigError(f"{item!r} is not a time in seconds; write keyframe times like 1.5, 4, 8") from None
+    return values
