@@ -30,6 +30,7 @@ import soundfile as sf  # noqa: E402
 
 from dgsdp.errors import AudioError, ConfigError, DgsdpError  # noqa: E402
 from dgsdp.generation import parse_schedule  # noqa: E402
+from dgsdp.sampling import METHODS  # noqa: E402
 from dgsdp.studio import engine as eng  # noqa: E402
 from dgsdp.studio.viewer import CSS_TEMPLATE, HTML_TEMPLATE, JS_ON_LOAD, viewer_value, write_joints_json  # noqa: E402
 from dgsdp.style import AISTPP_GENRES  # noqa: E402
@@ -352,7 +353,7 @@ def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[g
                     style_w = gr.Slider(
                         0, 5, value=1.0, step=0.1, label="Style guidance (models trained with style dropout)"
                     )
-                    sampler = gr.Radio(["ddim", "ddpm"], value="ddim", label="Sampler")
+                    sampler = gr.Radio(list(METHODS), value="ddim", label="Sampler")
                     steps = gr.Slider(1, 1000, value=config.default_steps, step=1, label="Steps (DDIM)",
                                       elem_id="steps")  # fmt: skip
                     seed = gr.Number(value=0, precision=0, label="Seed")

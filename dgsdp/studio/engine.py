@@ -25,9 +25,9 @@ import torch
 
 import dgsdp.export
 from dgsdp.errors import ConfigError
-from dgsdp.generation import DanceGenerator, EditSettings, SamplingSettings, write_motion
+from dgsdp.generation import DanceGenerator, EditSettings, write_motion
 from dgsdp.motion import pose_to_joints
-from dgsdp.sampling import Guidance
+from dgsdp.sampling import GuidanceSettings, SamplingSettings
 
 EDITS = ("none", "upper_body", "lower_body", "keyframes", "continue", "range")
 
@@ -125,15 +125,10 @@ class Engine:
     def run(self, request: DanceRequest, out_base: Path, progress: bool = False) -> Dance:
         """Generate (or edit) one dance and write its files as ``out_base`` + suffixes."""
         gen = self.generator(request.checkpoint)
-        method = request.sampler.lower()
-        if method not in ("ddim", "ddpm"):
-            raise ConfigError(f"sampler {request.sampler!r} is not a sampler; use ddim or ddpm")
-        if int(request.steps) < 1:
-            raise ConfigError(f"steps must be at least 1, got {request.steps}")
-        sampling = SamplingSettings(
-            method=method,
+        sampling = SamplingSettings(  # checks the sampler name and steps (ConfigError)
+            method=request.sampler,
             steps=int(request.steps),
-            guidance=Guidance(float(request.music_weight), float(request.style_weight), edit_cap_below_t=100),
+            guidance=GuidanceSettings(music=float(request.music_weight), style=float(request.style_weight)),
         )
         plan = gen.resolve_style(request.style)
         music, n_frames = gen.music_features(request.song)
