@@ -211,3 +211,44 @@ def test_write_motion_writes_glb(tmp_path):
     np.testing.assert_allclose(root, np.stack((trans[:, 0], trans[:, 2], -trans[:, 1]), axis=-1), atol=1e-6)
     with pytest.raises(ConfigError, match="unknown output format.*gltf"):
         write_motion(motion, tmp_path / "other", fps=30, formats=["gltf"])
+
+
+def test_skinned_body_follows_the_animated_bones(written):
+    """Skinning by hand (joint world matrix @ inverse bind matrix @ vertex) at one frame: every body vertex lies
+    within a capsule radius (plus the head's sphere) of the bones between the animated joints."""
+    path, rot, trans = written
+    gltf = pygltflib.GLTF2().load(str(path))
+    blob = gltf.binary_blob()
+    anim = gltf.animations[0]
+    tracks = {
+        (ch.target.node, ch.target.path): read_accessor(gltf, blob, anim.samplers[ch.sampler].output)
+        for ch in anim.channels
+    }
+    frame = 20
+    joint_nodes = gltf.skins[0].joints
+    world = [None] * 24
+    for j, node_index in enumerate(joint_nodes):
+        node = gltf.nodes[node_index]
+        translation = tracks[(node_index, "translation")][frame] if j == 0 else node.translation
+        local = trs(translation, tracks[(node_index, "rotation")][frame])
+        world[j] = local if PARENTS[j] < 0 else world[PARENTS[j]] @ local
+    ibm = read_accessor(gltf, blob, gltf.skins[0].inverseBindMatrices).reshape(24, 4, 4).transpose(0, 2, 1)
+    joints = np.array([w[:3, 3] for w in world])
+    segments = [(joints[PARENTS[j]], joints[j]) for j in range(1, 24)]
+
+    def distance_to_bones(p: np.ndarray) -> float:
+        best = np.inf
+        for a, b in segments:
+            t = np.clip(np.dot(p - a, b - a) / max(np.dot(b - a, b - a), 1e-12), 0.0, 1.0)
+            best = min(best, np.linalg.norm(p - (a + t * (b - a))))
+        return best
+
+    body = next(m for m in gltf.meshes if m.name == "body")
+    far = 0.0
+    for prim in body.primitives:
+        verts = read_accessor(gltf, blob, prim.attributes.POSITION).astype(np.float64)
+        owners = read_accessor(gltf, blob, prim.attributes.JOINTS_0)[:, 0]
+        for v, j in zip(verts[::7], owners[::7]):
+            skinned = (world[j] @ ibm[j] @ np.append(v, 1.0))[:3]
+            far = max(far, distance_to_bones(skinned))
+    assert far < 0.2  # capsules are at most 7.5 cm thick; the head sphere (10 cm) sits 7 cm above the head joint
