@@ -22,6 +22,7 @@ from pathlib import Path
 from dgsdp.cli.config import compose_config
 from dgsdp.errors import DgsdpError
 from dgsdp.resources import default_log_dir
+from dgsdp.utils.logs import lightning_logs_through_root
 
 FREE_TEXT_STYLE = "sharp, powerful krump with heavy chest pops and arm swings"
 TRAIN_STEPS = 600
@@ -30,6 +31,7 @@ TRAIN_STEPS = 600
 def main(argv: list[str] | None = None) -> int:
     overrides = list(sys.argv[1:] if argv is None else argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
+    lightning_logs_through_root()
     out = default_log_dir() / "quickstart" / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     try:
         from dgsdp.cli.train import train

@@ -1,14 +1,16 @@
 """Stick-figure videos of a dance, with the music: mp4 through ffmpeg, or a silent GIF when ffmpeg is missing.
 
-The view is a fixed orthographic camera (``Camera``) fitted once to the whole motion, so the dancer never leaves
-the frame and distances on screen stay comparable across frames; a floor grid is drawn at the lowest joint height
-of the motion. Joints are z-up metres (FK output). Bones are coloured by side: left blue, right red, centre grey,
-and drawn far to near.
+The view is an orthographic camera (``Camera``) that follows the dancer: each frame's camera looks at the root's
+horizontal position smoothed over time (a zero-lag Gaussian of ``FOLLOW_SMOOTH_SECONDS``), at one height and one
+zoom for the whole video, chosen so that every joint of every frame stays in view (``follow_cameras``). Pass a
+``Camera`` (for example from ``fit_camera``) for a fixed view instead. The floor grid is drawn at the true floor,
+z = 0 (the dataset's floor), not at the lowest joint, so jumps leave the floor. Joints are z-up metres (FK output).
+Bones are coloured by side: left blue, right red, centre grey, and drawn far to near. A title is wrapped onto
+lines, and shrunk if needed, so that it fits the image width.
 
-Audio: the song is decoded with the project's audio loader and muxed as AAC without ``-shortest``, so the audio
-stream keeps the song's full duration. When the song is longer than the motion the last frame is held until the
-song ends (both streams then end together); when the motion is longer, the video continues after the song ends.
-Pass an audio clip cut to the motion's span if only that part should be heard.
+Video and audio: the video has exactly one frame per motion frame. The song is decoded with the project's audio
+loader, cut to the motion's duration (N / fps seconds) and muxed as AAC; both streams start at time 0, so frame i
+is shown while the music at i / fps seconds plays. A song shorter than the motion ends before the video does.
 """
 
 from __future__ import annotations
@@ -44,6 +46,9 @@ HEAD_JOINT = JOINT_NAMES.index("head")
 HEAD_RADIUS_M = 0.09
 GRID_STEP_M = 0.5
 AUDIO_BITRATE = "192k"
+FOLLOW_SMOOTH_SECONDS = 0.5
+TITLE_MAX_LINES = 3
+MIN_TITLE_PX = 8
 
 
 @functools.lru_cache(maxsize=8)
@@ -73,7 +78,7 @@ class Camera:
     extent_m: float
     azimuth_deg: float = 20.0
     elevation_deg: float = 15.0
-    floor_z: float = 0.0
+    floor_z: float = 0.0  # height of the floor grid (metres); the dataset's floor is z = 0
 
     def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Unit vectors (right, up, towards the camera), each (3,)."""
@@ -100,10 +105,11 @@ def fit_camera(
     azimuth_deg: float = 20.0,
     elevation_deg: float = 15.0,
     margin: float = 0.15,
+    floor_z: float = 0.0,
 ) -> Camera:
-    """A camera that keeps every joint of every frame in view. joints: (T, 24, 3) or (24, 3), z-up metres.
+    """A fixed camera that keeps every joint of every frame in view. joints: (T, 24, 3) or (24, 3), z-up metres.
 
-    ``margin`` is the fraction of the view left free around the figure; the floor is at the lowest joint.
+    ``margin`` is the fraction of the view left free around the figure; the floor grid is drawn at ``floor_z``.
     """
     pts = _as_joints(joints).reshape(-1, 3)
     probe = Camera((0.0, 0.0, 0.0), 1.0, azimuth_deg, elevation_deg)
@@ -117,7 +123,50 @@ def fit_camera(
     target = middle + right * (centre_right - middle @ right) + up * (centre_up - middle @ up)
     span = max(np.ptp(along_right), np.ptp(along_up), 1.0) + 2 * HEAD_RADIUS_M
     extent = span / max(1.0 - 2 * margin, 0.1)
-    return Camera(tuple(float(v) for v in target), float(extent), azimuth_deg, elevation_deg, float(lo[2]))
+    return Camera(tuple(float(v) for v in target), float(extent), azimuth_deg, elevation_deg, float(floor_z))
+
+
+def follow_cameras(
+    joints: torch.Tensor | np.ndarray,
+    fps: float = 30,
+    azimuth_deg: float = 20.0,
+    elevation_deg: float = 15.0,
+    margin: float = 0.15,
+    smooth_seconds: float = FOLLOW_SMOOTH_SECONDS,
+    floor_z: float = 0.0,
+) -> list[Camera]:
+    """One camera per frame following the dancer. joints: (T, 24, 3) z-up metres; the root is joint 0.
+
+    The target's x and y are the root's, smoothed by a Gaussian of ``smooth_seconds`` (standard deviation; no lag,
+    as the filter is centred); its height and the zoom are the same for all frames, chosen so that every joint of
+    every frame, and the floor point below the target, are in view with ``margin`` of the view free around them.
+    """
+    from scipy.ndimage import gaussian_filter1d
+
+    motion = _as_joints(joints)
+    if motion.ndim != 3:
+        raise DataError(f"follow_cameras needs a motion (T, 24, 3), got shape {motion.shape}")
+    if not fps > 0 or not smooth_seconds >= 0:
+        raise ConfigError(f"fps must be positive and smooth_seconds non-negative, got {fps} and {smooth_seconds}")
+    root_xy = motion[:, 0, :2]
+    sigma = smooth_seconds * fps
+    centre_xy = gaussian_filter1d(root_xy, sigma, axis=0, mode="nearest") if sigma > 0 else root_xy
+    probe = Camera((0.0, 0.0, 0.0), 1.0, azimuth_deg, elevation_deg)
+    right, up, _ = probe.axes()
+    floor = np.concatenate((centre_xy, np.full((len(motion), 1), floor_z)), axis=-1)[:, None]  # under the target
+    rel = np.concatenate((motion, floor), axis=1)  # joints and the floor below them stay in view
+    rel[..., :2] -= centre_xy[:, None, :]  # relative to a target at height 0
+    along_right, along_up = rel @ right, rel @ up
+    # Raising the target by h moves every point down the screen by h * up_z: centre the on-screen height range.
+    middle_up = (along_up.min() + along_up.max()) / 2
+    target_z = middle_up / up[2] if up[2] > 1e-6 else float(motion[..., 2].mean())
+    half_width = np.abs(along_right).max()
+    span = max(2 * half_width, np.ptp(along_up), 1.0) + 2 * HEAD_RADIUS_M
+    extent = float(span / max(1.0 - 2 * margin, 0.1))
+    return [
+        Camera((float(x), float(y), float(target_z)), extent, azimuth_deg, elevation_deg, float(floor_z))
+        for x, y in centre_xy
+    ]
 
 
 def _as_joints(joints: torch.Tensor | np.ndarray) -> np.ndarray:
@@ -189,9 +238,53 @@ def render_frame(
     hx, hy = px[HEAD_JOINT]
     draw.ellipse([hx - head_r, hy - head_r, hx + head_r, hy + head_r], outline=CENTRE_COLOUR, width=line_px)
     if title:
-        font = _font(max(10, min(size) // 24))
-        draw.text((line_px * 4, line_px * 3), title, fill=TEXT_COLOUR, font=font)
+        left, top = line_px * 4, line_px * 3
+        lines, font = fit_title(title, size[0] - 2 * left, max(10, min(size) // 24))
+        y = top
+        for line in lines:
+            draw.text((left, y), line, fill=TEXT_COLOUR, font=font)
+            y += _line_height(font)
     return np.asarray(image, dtype=np.uint8)
+
+
+def _line_height(font: ImageFont.FreeTypeFont | ImageFont.ImageFont) -> int:
+    box = font.getbbox("Ag")
+    return int(math.ceil((box[3] - box[1]) * 1.25))
+
+
+def _wrap(words: list[str], font: ImageFont.FreeTypeFont | ImageFont.ImageFont, width_px: int) -> list[str]:
+    lines: list[str] = []
+    for word in words:
+        if lines and font.getlength(f"{lines[-1]} {word}") <= width_px:
+            lines[-1] = f"{lines[-1]} {word}"
+        else:
+            lines.append(word)
+    return lines
+
+
+def fit_title(
+    title: str, width_px: int, size_px: int
+) -> tuple[list[str], ImageFont.FreeTypeFont | ImageFont.ImageFont]:
+    """Lines and font for ``title`` within ``width_px``: wrapped at spaces onto at most ``TITLE_MAX_LINES`` lines,
+    the font shrunk from ``size_px`` down to ``MIN_TITLE_PX`` until every line fits. A title that does not fit
+    even then is cut, and the cut marked with "..."."""
+    words = title.split() or [title]
+    for px in range(size_px, MIN_TITLE_PX - 1, -1):
+        font = _font(px)
+        lines = _wrap(words, font, width_px)
+        if len(lines) <= TITLE_MAX_LINES and all(font.getlength(line) <= width_px for line in lines):
+            return lines, font
+    font = _font(MIN_TITLE_PX)
+    lines = _wrap(words, font, width_px)
+    cut_after = len(lines) > TITLE_MAX_LINES
+    fitted = []
+    for i, line in enumerate(lines[:TITLE_MAX_LINES]):
+        if font.getlength(line) > width_px or (cut_after and i == TITLE_MAX_LINES - 1):
+            while line and font.getlength(line + "...") > width_px:
+                line = line[:-1]
+            line += "..."
+        fitted.append(line)
+    return fitted, font
 
 
 def ffmpeg_available() -> bool:
@@ -199,8 +292,10 @@ def ffmpeg_available() -> bool:
     return shutil.which("ffmpeg") is not None
 
 
-def _frames(joints: np.ndarray, camera: Camera, size: tuple[int, int], title: str | None) -> Iterator[np.ndarray]:
-    for pose in joints:
+def _frames(
+    joints: np.ndarray, cameras: Sequence[Camera], size: tuple[int, int], title: str | None
+) -> Iterator[np.ndarray]:
+    for pose, camera in zip(joints, cameras, strict=True):
         yield render_frame(pose, camera, size, title)
 
 
@@ -221,29 +316,25 @@ def _write_mp4(
     audio_path: Path | None,
 ) -> None:
     with tempfile.TemporaryDirectory(prefix="dgsdp-render-") as work:
-        pad_frames = 0
         cmd = ["ffmpeg", "-y", "-hide_banner", "-loglevel", "error"]
         cmd += ["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{size[0]}x{size[1]}", "-framerate", f"{fps}"]
         cmd += ["-i", "pipe:0"]
         if audio_path is not None:
             wave, rate_hz = load_audio(audio_path, sample_rate=None, mono=False)
             wav = Path(work) / "audio.wav"
-            sf.write(wav, wave.T, rate_hz, subtype="FLOAT")
-            song_seconds = wave.shape[-1] / rate_hz
-            pad_frames = max(0, math.ceil(song_seconds * fps - 1e-6) - n_frames)
+            # The music under the motion only: N / fps seconds from the start of the song.
+            sf.write(wav, wave[:, : round(n_frames / fps * rate_hz)].T, rate_hz, subtype="FLOAT")
             cmd += ["-i", str(wav), "-map", "0:v:0", "-map", "1:a:0", "-c:a", "aac", "-b:a", AUDIO_BITRATE]
+        # The video gets exactly the frames written to the pipe (``-frames:v`` would stop the audio early).
         cmd += ["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-c:v", "libx264", "-pix_fmt", "yuv420p"]
         cmd += ["-movflags", "+faststart", "-f", "mp4", str(tmp)]
         log_path = Path(work) / "ffmpeg.log"
         with open(log_path, "wb") as log:
             proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=log)
             assert proc.stdin is not None
-            last = None
             try:
-                for last in frames:
-                    proc.stdin.write(last.tobytes())
-                for _ in range(pad_frames):
-                    proc.stdin.write(last.tobytes())  # hold the last pose until the song ends
+                for frame in frames:
+                    proc.stdin.write(frame.tobytes())
                 proc.stdin.close()
             except BrokenPipeError:
                 pass  # ffmpeg stopped early; its log says why
@@ -268,12 +359,15 @@ def render_video(
     title: str | None = None,
     size: tuple[int, int] = (480, 480),
     camera: Camera | None = None,
+    azimuth_deg: float = 20.0,
+    elevation_deg: float = 15.0,
 ) -> Path:
-    """Render joints (T, 24, 3), z-up metres at ``fps``, as a stick-figure video; returns the path written.
+    """Render joints (T, 24, 3), z-up metres at ``fps``, as a stick-figure video of T frames; returns the path.
 
-    With ffmpeg: an mp4 (H.264, yuv420p) with the music at ``audio_path`` muxed as AAC (see the module docstring
-    for durations). Without ffmpeg, or when ``path`` ends in ``.gif``: a silent GIF next to ``path`` (with a
-    warning when ffmpeg is missing). The file appears atomically (no half-written video on error).
+    With ffmpeg: an mp4 (H.264, yuv420p) with the music at ``audio_path`` cut to the motion's duration and muxed
+    as AAC (see the module docstring). Without ffmpeg, or when ``path`` ends in ``.gif``: a silent GIF next to
+    ``path`` (with a warning when ffmpeg is missing). ``camera``: a fixed view; by default the camera follows the
+    dancer (``follow_cameras``), seen from ``azimuth_deg`` and ``elevation_deg`` (see ``Camera``). The file appears atomically (no half-written video on error).
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -285,8 +379,8 @@ def render_video(
     if motion.ndim != 3:
         raise DataError(f"render_video needs a motion (T, 24, 3), got shape {motion.shape}")
     size = _check_size(size)
-    camera = camera or fit_camera(motion)
-    frames = _frames(motion, camera, size, title)
+    cameras = [camera] * len(motion) if camera is not None else follow_cameras(motion, fps, azimuth_deg, elevation_deg)
+    frames = _frames(motion, cameras, size, title)
 
     if suffix == ".gif" or not ffmpeg_available():
         if suffix != ".gif":

@@ -314,11 +314,14 @@ def write_motion(
     formats: Sequence[str] = ("pkl", "bvh", "video", "npy"),
     title: str | None = None,
 ) -> list[Path]:
-    """Write one motion (T, 151), unnormalised, as ``base`` + .pkl (AIST++), .bvh, .mp4/.gif and .npy."""
-    from dgsdp.export import render_video, save_aistpp_pkl, save_bvh
+    """Write one motion (T, 151), unnormalised, as ``base`` + .pkl (AIST++), .bvh, .glb, .mp4/.gif and .npy."""
+    from dgsdp.export import render_video, save_aistpp_pkl, save_bvh, save_glb
 
     if motion.ndim != 2 or motion.shape[-1] != POSE_DIM:
         raise ValueError(f"write_motion needs one motion (T, {POSE_DIM}), got {tuple(motion.shape)}")
+    unknown = sorted(set(formats) - {"npy", "pkl", "bvh", "glb", "video"})
+    if unknown:
+        raise ConfigError(f"unknown output format(s) {unknown}; choose from npy, pkl, bvh, glb, video")
     base.parent.mkdir(parents=True, exist_ok=True)
     parts = unpack_pose(motion.double())
     written: list[Path] = []
@@ -331,6 +334,8 @@ def write_motion(
         written.append(save_aistpp_pkl(base.with_suffix(".pkl"), parts.rotmats, parts.root_trans, fps))
     if "bvh" in formats:
         written.append(save_bvh(base.with_suffix(".bvh"), parts.rotmats, parts.root_trans, fps))
+    if "glb" in formats:
+        written.append(save_glb(base.with_suffix(".glb"), parts.rotmats, parts.root_trans, fps))
     if "video" in formats:
         joints = pose_to_joints(motion.double()).float()
         written.append(render_video(base.with_suffix(".mp4"), joints, fps, audio_path, title=title))

@@ -1,4 +1,5 @@
-"""Stick-figure rendering: pixels where the projected joints are, mp4 with the song (ffprobe), GIF fallback."""
+"""Stick-figure rendering: pixels where the projected joints are, the floor at z = 0, titles that fit, a camera
+that follows the dancer, mp4 with one frame per motion frame and the song from time 0 (ffprobe), GIF fallback."""
 
 import json
 import shutil
@@ -93,7 +94,7 @@ def test_fitted_camera_keeps_the_dance_in_view():
     # Centred: the on-screen box of all joints has its middle at the image centre.
     box_middle = (px.reshape(-1, 2).min(0) + px.reshape(-1, 2).max(0)) / 2
     np.testing.assert_allclose(box_middle, [60.0, 45.0], atol=1e-6)
-    assert cam.floor_z == pytest.approx(joints[..., 2].min())
+    assert cam.floor_z == 0.0  # the true floor, not the lowest joint
 
 
 def test_frames_differ_and_title():
@@ -139,14 +140,50 @@ def test_mp4_with_song(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dance.mp4", "song.wav"]
 
 
+def counted_frames(path) -> tuple[int, dict]:
+    """Video frames decoded by ffprobe (-count_frames) and the start times of the streams."""
+    out = subprocess.run(
+        ["ffprobe", "-v", "error", "-count_frames", "-show_entries", "stream=codec_type,nb_read_frames,start_time",
+         "-of", "json", str(path)],
+        check=True, capture_output=True, text=True,
+    ).stdout  # fmt: skip
+    streams = {s["codec_type"]: s for s in json.loads(out)["streams"]}
+    return int(streams["video"]["nb_read_frames"]), {k: float(v["start_time"]) for k, v in streams.items()}
+
+
 @needs_ffmpeg
-def test_mp4_song_longer_than_motion_holds_last_frame(tmp_path):
-    song = sine_wav(tmp_path / "song.wav", 3.0)
-    out = render_video(tmp_path / "dance", dancing(30), fps=30, audio_path=song, size=(64, 48))
+@pytest.mark.parametrize(
+    ("song_seconds", "rate_hz", "frames"),
+    [
+        (3.0, 22050, 30),  # song much longer than the motion: the video still ends with the motion
+        (2.345, 44100, 70),  # a song whose length is not a whole number of frames: floor(2.345 * 30) = 70
+        (1.0, 48000, 30),
+        (0.5, 22050, 29),  # song shorter than the motion
+    ],
+)
+def test_mp4_has_one_frame_per_motion_frame(tmp_path, song_seconds, rate_hz, frames):
+    song = sine_wav(tmp_path / "song.wav", song_seconds, rate_hz)
+    out = render_video(tmp_path / "dance", dancing(frames), fps=30, audio_path=song, size=(64, 48))
     assert out.suffix == ".mp4"
-    streams = {s["codec_type"]: s for s in ffprobe_streams(out)}
-    assert float(streams["audio"]["duration"]) == pytest.approx(3.0, abs=0.05)
-    assert int(streams["video"]["nb_frames"]) == 90
+    n, starts = counted_frames(out)
+    assert n == frames
+    assert starts["video"] == pytest.approx(0.0, abs=1e-3) and starts["audio"] == pytest.approx(0.0, abs=1e-3)
+    audio = {s["codec_type"]: s for s in ffprobe_streams(out)}["audio"]
+    assert float(audio["duration"]) == pytest.approx(min(song_seconds, frames / 30), abs=0.03)
+
+
+@needs_ffmpeg
+def test_mp4_from_a_compressed_song(tmp_path):
+    """An mp3 (its decoder adds samples at the start); the motion covers floor(duration * 30) frames."""
+    wav = sine_wav(tmp_path / "song.wav", 2.71, 44100)
+    mp3 = tmp_path / "song.mp3"
+    subprocess.run(["ffmpeg", "-v", "error", "-i", str(wav), str(mp3)], check=True)
+    from dgsdp.audio.io import load_audio
+
+    wave, rate_hz = load_audio(mp3, sample_rate=None)
+    frames = len(wave) * 30 // rate_hz
+    out = render_video(tmp_path / "dance.mp4", dancing(frames), fps=30, audio_path=mp3, size=(64, 48))
+    assert counted_frames(out)[0] == frames
 
 
 @needs_ffmpeg
@@ -166,3 +203,139 @@ def test_gif_fallback_without_ffmpeg(tmp_path, monkeypatch):
         assert gif.format == "GIF" and gif.n_frames == 12 and gif.size == (64, 64)
         assert gif.info["duration"] == pytest.approx(1000 / 30, abs=10)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dance.gif", "song.wav"]
+
+
+# The floor: drawn at z = 0 (the dataset's floor), not at the lowest joint.
+
+
+def lifted(height_m: float) -> np.ndarray:
+    """The standing pose with its pelvis ``height_m`` above the floor (lowest joint well above z = 0)."""
+    pose = standing_pose().numpy()
+    pose[:, 2] += height_m - 0.9
+    return pose
+
+
+def is_floor(pixel: np.ndarray) -> bool:
+    return bool(np.abs(pixel.astype(int) - render.FLOOR_COLOUR).max() <= 2)
+
+
+def test_floor_line_at_true_height_front_view():
+    size = (200, 200)
+    pose = lifted(2.0)
+    cam = Camera(target=(0.0, 0.0, 1.0), extent_m=3.5, azimuth_deg=0.0, elevation_deg=0.0)
+    img = render_frame(pose, cam, size=size)
+    scale = 200 / 3.5
+    floor_row = round(100 + scale * 1.0)  # z = 0 seen edge-on: one horizontal line
+    rows = [r for r in range(200) if np.mean([is_floor(p) for p in img[r]]) > 0.9]
+    assert rows and min(rows) >= floor_row - 1 and max(rows) <= floor_row + 1
+    lowest_row = round(100 - scale * (pose[:, 2].min() - 1.0))
+    assert floor_row - lowest_row > 40  # far from where a lowest-joint floor would be
+
+
+def grid_crossings(camera: Camera, n: int = 2) -> np.ndarray:
+    """Floor grid crossings (z = 0) around the camera's target, (K, 3)."""
+    step = render.GRID_STEP_M
+    cx, cy = round(camera.target[0] / step) * step, round(camera.target[1] / step) * step
+    return np.array([(cx + i * step, cy + k * step, 0.0) for i in range(-n, n + 1) for k in range(-n, n + 1)])
+
+
+def test_floor_grid_at_true_height_oblique_view():
+    size = (240, 240)
+    pose = lifted(2.2)
+    cam = render.fit_camera(pose, azimuth_deg=30.0, elevation_deg=30.0)
+    cam = Camera((cam.target[0], cam.target[1], 1.0), 4.0, 30.0, 30.0)  # zoomed out to see the floor
+    img = render_frame(pose, cam, size=size)
+    lowest = pose[:, 2].min()
+    drawn = shifted = 0
+    for point in grid_crossings(cam):
+        x, y = np.round(cam.project(point, size)).astype(int)
+        x2, y2 = np.round(cam.project(point + [0, 0, lowest], size)).astype(int)
+        if 2 <= x < 238 and 2 <= y < 238 and 2 <= x2 < 238 and 2 <= y2 < 238:
+            drawn += is_floor(img[y, x])
+            shifted += (img[y2 - 1 : y2 + 2, x2 - 1 : x2 + 2] == 255).all(axis=-1).all()
+    assert drawn >= 5 and shifted >= 5  # grid crossings at z = 0 are drawn; at the lowest joint's height, nothing
+
+
+@needs_ffmpeg
+def test_video_frames_show_the_floor_at_true_height(tmp_path):
+    """Through the whole mp4 path, following camera: a front view (the floor seen edge-on, one line) of a dance
+    0.8 m above the floor."""
+    joints = dancing(20).numpy()
+    joints[..., 2] += 0.8
+    size = (240, 240)
+    out = render_video(tmp_path / "dance.mp4", joints, fps=30, size=size, azimuth_deg=0.0, elevation_deg=0.0)
+    raw = subprocess.run(
+        ["ffmpeg", "-v", "error", "-i", str(out), "-f", "rawvideo", "-pix_fmt", "rgb24", "pipe:1"],
+        check=True, capture_output=True,
+    ).stdout  # fmt: skip
+    frames = np.frombuffer(raw, np.uint8).reshape(-1, 240, 240, 3).astype(int)
+    assert len(frames) == 20
+    cameras = render.follow_cameras(joints, fps=30, azimuth_deg=0.0, elevation_deg=0.0)
+    for t in (0, 10, 19):
+        # Front view by hand: screen up is +z, the target's height at the image centre.
+        scale, target_z = 240 / cameras[t].extent_m, cameras[t].target[2]
+        floor_row = round(120 + scale * target_z)
+        lowest_row = round(120 - scale * (joints[t, :, 2].min() - target_z))
+        grey_rows = [r for r in range(240) if np.mean(np.abs(frames[t, r] - 200).max(axis=-1) < 20) > 0.8]
+        assert grey_rows and min(grey_rows) >= floor_row - 2 and max(grey_rows) <= floor_row + 2, (t, grey_rows)
+        assert floor_row - lowest_row > 25
+        # Below the feet and above the floor: only white.
+        assert frames[t, lowest_row + 5 : floor_row - 5].min() > 235
+
+
+# The camera follows the dancer.
+
+
+def test_camera_follows_a_travelling_dancer():
+    joints = dancing(150).numpy()
+    joints[..., 0] += 0.03 * np.arange(150)[:, None]  # 0.05 m per frame along x in all: 7.5 m
+    size = (160, 120)
+    cameras = render.follow_cameras(joints, fps=30)
+    assert len(cameras) == 150
+    assert len({c.extent_m for c in cameras}) == 1 and len({c.target[2] for c in cameras}) == 1
+    assert all(c.floor_z == 0.0 for c in cameras)
+    for t in range(150):
+        px = cameras[t].project(joints[t], size)
+        assert (px >= 0).all() and (px[:, 0] <= size[0]).all() and (px[:, 1] <= size[1]).all(), t
+        assert abs(px[0, 0] - size[0] / 2) < 0.1 * size[0], t  # pelvis near the middle
+    # A fixed camera fitted to the whole path would show the dancer at a third of the size or less.
+    assert cameras[0].extent_m < render.fit_camera(joints).extent_m / 3
+
+
+def test_camera_smooths_root_jitter():
+    joints = np.repeat(standing_pose().numpy()[None], 90, axis=0)
+    jitter = 0.05 * (-1.0) ** np.arange(90)  # 5 cm left-right every frame
+    joints[..., 0] += jitter[:, None]
+    targets = np.array([c.target for c in render.follow_cameras(joints, fps=30)])
+    assert np.abs(np.diff(targets[:, 0])).max() < 0.002  # the camera barely moves
+    assert np.abs(targets[30:60, 0]).max() < 0.1 * 0.05  # and stays on the mean position (away from the ends)
+
+
+# Titles fit the frame.
+
+LONG_TITLE = "gBR_sBM_cAll_d04_mBR0_ch01 - style: slow graceful moonwalk with sharp arm waves, then a spin"
+
+
+def test_long_title_is_wrapped_within_the_width():
+    width = 150
+    lines, font = render.fit_title(LONG_TITLE, width, 20)
+    assert len(lines) > 1 and " ".join(lines) == LONG_TITLE  # wrapped at spaces, nothing lost
+    assert all(font.getlength(line) <= width for line in lines)
+    assert len(lines) <= render.TITLE_MAX_LINES
+    short_lines, short_font = render.fit_title("gBR", width, 20)
+    assert short_lines == ["gBR"] and short_font.size == 20
+    cut, small = render.fit_title("x" * 400, width, 20)
+    assert cut[0].endswith("...") and small.getlength(cut[0]) <= width
+
+
+def test_long_title_pixels_stay_inside_the_frame():
+    size = (160, 160)
+    cam = Camera(target=(0.0, 0.0, 0.9), extent_m=6.0, azimuth_deg=0.0, elevation_deg=0.0, floor_z=-10.0)
+    img = render_frame(standing_pose(), cam, size=size, title=LONG_TITLE)
+    ink = (img < 40).all(axis=-1)  # black text; the figure's colours are lighter
+    line_px = max(1, round(160 / 120))
+    margin = line_px * 4
+    assert ink.sum() > 200
+    assert not ink[:, -margin + 1 :].any()  # no text runs into the right margin (or off the image)
+    rows = np.nonzero(ink.any(axis=1))[0]
+    assert rows.max() - rows.min() > 20  # more than one line
