@@ -16,13 +16,15 @@ import yaml
 REPO = Path(__file__).resolve().parents[2]
 DRIVER = Path(__file__).with_name("cli_driver.py")
 
+# entry point: (how it is run, a word its help must show). Hydra apps list their config groups and config (the
+# README's commands name these keys); argparse tools print a usage line.
 HELP = {
-    "train.py": ({"script": str(REPO / "train.py")}, "powered by Hydra"),
-    "generate.py": ({"script": str(REPO / "generate.py")}, "powered by Hydra"),
-    "evaluate.py": ({"script": str(REPO / "evaluate.py")}, "powered by Hydra"),
-    "dgsdp.sweep": ({"module": "dgsdp.sweep"}, "usage: python -m dgsdp.sweep"),
-    "dgsdp.report": ({"module": "dgsdp.report"}, "usage: python -m dgsdp.report"),
-    "dgsdp.data.synthetic": ({"module": "dgsdp.data.synthetic"}, "usage: python -m dgsdp.data.synthetic"),
+    "train.py": ({"script": str(REPO / "train.py")}, "audio"),
+    "generate.py": ({"script": str(REPO / "generate.py")}, "checkpoint"),
+    "evaluate.py": ({"script": str(REPO / "evaluate.py")}, "checkpoint"),
+    "dgsdp.sweep": ({"module": "dgsdp.sweep"}, "usage:"),
+    "dgsdp.report": ({"module": "dgsdp.report"}, "usage:"),
+    "dgsdp.data.synthetic": ({"module": "dgsdp.data.synthetic"}, "usage:"),
 }
 TRAIN_STEPS = 2
 
@@ -61,7 +63,7 @@ def test_help(runs, name):
     result = runs["results"][name]
     assert result["code"] == 0, result
     text = result["stdout"]
-    assert HELP[name][1] in text, text[:2000]
+    assert HELP[name][1] in text.lower(), text[:2000]
     assert len(text.splitlines()) >= 3
 
 
