@@ -131,8 +131,10 @@ class GaussianDiffusion(nn.Module):
         return ab_prev.sqrt() * x0 + direction + sigma * noise
 
     def ddim_timesteps(self, num_sampling_steps: int) -> list[int]:
-        """Evenly spaced descending steps, e.g. 1000 steps and 50 sampling steps: 999, 979, ..., 19."""
+        """Evenly spaced descending steps over the whole schedule, e.g. 1000 steps and 50 sampling steps: 999, 979,
+        ..., 19 (EDGE's ``linspace(-1, T - 1, n + 1)`` without its -1); gaps are floor or ceil of T / n when n
+        does not divide T, so the last step is always within one gap of 0."""
         if not 1 <= num_sampling_steps <= self.num_steps:
             raise ValueError(f"sampling steps must be in 1..{self.num_steps}, got {num_sampling_steps}")
-        stride = self.num_steps // num_sampling_steps
-        return [self.num_steps - 1 - i * stride for i in range(num_sampling_steps)]
+        n = num_sampling_steps
+        return [k * self.num_steps // n - 1 for k in range(n, 0, -1)]

@@ -188,3 +188,14 @@ def test_ddim_timesteps():
     for bad in (0, 1001):
         with pytest.raises(ValueError, match="sampling steps"):
             d.ddim_timesteps(bad)
+
+
+@pytest.mark.parametrize("n", [3, 7, 30, 300, 501, 600, 750, 999])
+def test_ddim_timesteps_span_the_whole_schedule(n):
+    """Any number of sampling steps covers 999 .. ~0 evenly: the gaps are floor or ceil of 1000 / n and the last
+    step is within one gap of 0 (the final update goes from it to x0)."""
+    steps = GaussianDiffusion(num_steps=1000).ddim_timesteps(n)
+    assert len(steps) == n and steps[0] == 999
+    gaps = {a - b for a, b in zip(steps, steps[1:])}
+    assert gaps <= {1000 // n, -(-1000 // n)}
+    assert 0 <= steps[-1] < -(-1000 // n)

@@ -13,13 +13,14 @@ POSE_DIM = 151
 def tiny_denoiser(audio_dim: int = AUDIO_DIM, style_dim: int = STYLE_DIM, seed: int = 0, **kwargs) -> DanceDenoiser:
     """Random-init, eval mode, no dropout; the learned null style is made non-zero so that it is told apart from
     a zero style vector."""
-    torch.manual_seed(seed)
     options = {"seq_len": SEQ_LEN, "d_model": 16, "n_layers": 2, "n_heads": 2, "ff_dim": 32, "dropout": 0.0,
                "music_encoder_layers": 1, **kwargs}  # fmt: skip
-    model = DanceDenoiser(pose_dim=POSE_DIM, audio_dim=audio_dim, style_dim=style_dim, **options).eval()
-    if model.null_style is not None:
-        with torch.no_grad():
-            model.null_style.normal_()
+    with torch.random.fork_rng():  # seeded initialisation that leaves the global RNG alone
+        torch.manual_seed(seed)
+        model = DanceDenoiser(pose_dim=POSE_DIM, audio_dim=audio_dim, style_dim=style_dim, **options).eval()
+        if model.null_style is not None:
+            with torch.no_grad():
+                model.null_style.normal_()
     return model
 
 
