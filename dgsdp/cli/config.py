@@ -17,6 +17,10 @@ CONFIG_DIR = Path(__file__).resolve().parents[1] / "conf"
 
 if not OmegaConf.has_resolver("dgsdp_root"):
     OmegaConf.register_new_resolver("dgsdp_root", lambda: str(PROJECT_ROOT))
+if not OmegaConf.has_resolver("dgsdp_precision"):  # conf/trainer/ddp.yaml: bf16-mixed on GPUs, 32-true on CPUs
+    from dgsdp.training.distributed import precision_for
+
+    OmegaConf.register_new_resolver("dgsdp_precision", precision_for)
 
 
 def compose_config(

@@ -15,7 +15,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from dgsdp.cli.config import CONFIG_DIR, audio_encoder_from_config, build_hparams
 from dgsdp.errors import ConfigError, DgsdpError
+from dgsdp.training.distributed import is_writer, log_files_on_writer_only
 from dgsdp.training.module import DanceDiffusion, check_compatible, plain
+from dgsdp.training.resume import check_resume_has_work
 from dgsdp.utils.io import atomic_write_text
 
 log = logging.getLogger(__name__)
@@ -44,6 +46,7 @@ def _resume_logger_ids(cfg: DictConfig, ckpt: dict[str, Any]) -> None:
 
 def train(cfg: DictConfig) -> dict[str, Any]:
     """Run one training job. Returns the final metrics and the checkpoint folder."""
+    log_files_on_writer_only()  # data-parallel runs: one log file, written by rank 0
     L.seed_everything(int(cfg.seed), workers=True)  # seed 0 is a seed, not "no seed"
 
     audio_encoder = audio_encoder_from_config(cfg)
@@ -67,6 +70,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             raise ConfigError(f"ckpt_path {ckpt_path} does not exist; give the path of a checkpoint to resume from")
         saved = torch.load(ckpt_path, map_location="cpu", weights_only=True)
         check_compatible(saved.get("hyper_parameters", {}), plain(hparams), str(ckpt_path))
+        check_resume_has_work(cfg.trainer, saved)
         _resume_logger_ids(cfg, saved)
 
     callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values() if c and "_target_" in c]
@@ -74,7 +78,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     record = {"config": hparams["config"], "groups": hparams["groups"], "n_params": n_params}
     for logger in loggers:
         logger.log_hyperparams(record)
-        if type(logger).__name__ == "WandbLogger":
+        if type(logger).__name__ == "WandbLogger" and is_writer():
             # a readable copy in the run's files folder (uploaded with the run; offline runs keep it on disk)
             run_files = Path(logger.experiment.dir)
             atomic_write_text(run_files / "dgsdp_config.yaml", OmegaConf.to_yaml(OmegaConf.create(record)))
