@@ -139,7 +139,8 @@ class WindowDataset(Dataset):
             "start": start,
         }
         if seq.audio is not None:
-            item["audio"] = torch.from_numpy(np.ascontiguousarray(self._audio_window(seq.audio, start))).float()
+            # a copy of the window: the song's features may be a read-only memory map
+            item["audio"] = torch.from_numpy(np.array(self._audio_window(seq.audio, start), dtype=np.float32))
         return item
 
 
