@@ -21,6 +21,7 @@ class Probe(L.Callback):
         self._current: dict[str, Any] | None = None
         self._batch: dict[str, Any] | None = None
         self._recording = True
+        self._banks: list[Any] = []
 
     def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         diffusion = pl_module.diffusion
@@ -45,6 +46,9 @@ class Probe(L.Callback):
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
         self._current["loss"] = float(outputs["loss"])
+        bank = pl_module.style_bank
+        self._banks.append(bank)  # kept alive, so that a rebuilt bank cannot reuse an id
+        self._current["style_bank_id"] = id(bank)
 
     def on_before_optimizer_step(self, trainer, pl_module, optimizer) -> None:
         if trainer.global_step != 0:

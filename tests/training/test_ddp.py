@@ -119,6 +119,8 @@ def test_gradients_are_averaged_and_weights_identical_across_ranks(run_a):
     for key in p0["state"]:  # weights, EMA weights, normaliser, style bank
         assert torch.equal(p0["state"][key], p1["state"][key]), key
     assert p0["state"]["style_vectors"].abs().sum() > 0
+    for p in (p0, p1):  # the style bank was built once, not rebuilt by any training step
+        assert len({s["style_bank_id"] for s in steps_of(p)}) == 1
 
 
 def test_resumed_ddp_run_continues_exactly(run_a, run_b):
