@@ -22,7 +22,7 @@ from tqdm.auto import tqdm
 
 from dgsdp.audio import AudioEncoder, FeatureCache, load_audio
 from dgsdp.data.aistpp import check_root, load_motion_pkl, music_path, parse_name, process_motion, read_split
-from dgsdp.errors import DataError
+from dgsdp.errors import ConfigError, DataError
 from dgsdp.motion import POSE_DIM, MinMaxNormalizer
 from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
 from dgsdp.utils.io import DiskCache, file_hash
@@ -221,7 +221,10 @@ class ResumableLoader(DataLoader):
         **kwargs: Any,
     ) -> None:
         if "sampler" in kwargs or "shuffle" in kwargs:
-            raise ValueError("ResumableLoader brings its own sampler; do not pass sampler or shuffle")
+            raise ConfigError(
+                "the training loader shards the data across processes itself and cannot take another sampler: "
+                "keep trainer.use_distributed_sampler=false (conf/trainer/default.yaml)"
+            )
         sampler = EpochShuffleSampler(len(dataset), seed, rank=rank, world_size=world_size)
         if "drop_last" not in kwargs:  # full batches only, unless a rank's share is smaller than one batch
             kwargs["drop_last"] = len(sampler) > batch_size

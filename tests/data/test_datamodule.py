@@ -177,3 +177,10 @@ def test_sampler_reads_rank_and_world_from_torch_distributed(monkeypatch):
     assert (s.rank, s.world_size, len(s)) == (1, 4, 2)
     with pytest.raises(DataError, match="cannot be shared by 4 processes"):
         EpochShuffleSampler(3, seed=0)
+
+
+def test_loader_refuses_lightnings_distributed_sampler():
+    from dgsdp.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="use_distributed_sampler=false"):
+        ResumableLoader(list(range(10)), batch_size=2, seed=0, sampler=list(range(10)))
