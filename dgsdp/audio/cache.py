@@ -28,6 +28,7 @@ class FeatureCache:
     def __init__(self, cache_dir: str | os.PathLike) -> None:
         self.cache_dir = Path(cache_dir)
         self._caches: dict[str, DiskCache] = {}
+        self._mapped: dict[tuple[str, str], np.ndarray] = {}  # one memory map per cached song
 
     @staticmethod
     def namespace(encoder: AudioEncoder) -> str:
@@ -69,7 +70,12 @@ class FeatureCache:
             waveform, rate_hz = load_audio(audio_path, sample_rate=encoder.sample_rate, mono=True)
             return {FEATURES_KEY: encoder.encode(waveform, rate_hz, music_id=music_id)}
 
-        features = cache.get_or_compute(key, compute)[FEATURES_KEY]
+        mapped = self._mapped.get((cache.dir.name, key))
+        if mapped is None:
+            # a hit is memory-mapped: pages load on first touch and are shared by loader workers and ranks
+            mapped = cache.get_or_compute(key, compute, mmap=True)[FEATURES_KEY]
+            self._mapped[(cache.dir.name, key)] = mapped
+        features = mapped
         if n_frames is not None:
             features = fit_frames(features, int(n_frames))
         return features.astype(np.float32, copy=False)

@@ -1,10 +1,15 @@
-"""Training throughput: samples/s, peak memory and (on GPU) model FLOPs utilisation.
+"""Training throughput: samples/s, achieved TFLOP/s, model FLOPs utilisation (MFU) and peak memory.
 
     python -m dgsdp.benchmarks.training [--device cpu|cuda] [--models small paper] [--batch 32] [--steps 5]
+                                        [--compile] [--gradient-checkpointing]
 
 Runs full training steps (diffusion loss with FK and foot terms, backward, Adan step, EMA update) of the real
 LightningModule on random 5 s windows, without data loading. FLOPs of one step are counted with
-``torch.utils.flop_counter.FlopCounterMode``; MFU = achieved FLOP/s / the device's peak (bf16 dense).
+``torch.utils.flop_counter.FlopCounterMode`` (matrix products and attention, forward and backward; recomputation
+by activation checkpointing not counted, so MFU stays a model-FLOPs figure). MFU = achieved FLOP/s / the
+device's dense peak for the precision used: bf16 with ``--bf16`` (default on CUDA), TF32 for float32 matmuls at
+precision "high" (set on CUDA, as in training), from the vendors' spec sheets (:data:`PEAK_TFLOPS`). On a CPU
+there is no reliable peak figure, so MFU is printed as n/a.
 """
 
 from __future__ import annotations
@@ -19,7 +24,18 @@ from omegaconf import OmegaConf
 from dgsdp.resources import CONFIG_DIR
 from dgsdp.training.module import DanceDiffusion
 
-PEAK_BF16_TFLOPS = {"H100": 989.0, "H200": 989.0, "A100": 312.0, "A6000": 155.0, "L40": 181.0}
+# Dense (no sparsity) peak tensor TFLOP/s from NVIDIA's spec sheets: (bf16, tf32, fp32 without tensor cores).
+# Matched against torch.cuda.get_device_name() in this order (more specific names first).
+PEAK_TFLOPS: dict[str, tuple[float, float, float]] = {
+    "H100 PCIe": (756.0, 378.0, 51.2),
+    "H100 NVL": (835.0, 418.0, 60.0),
+    "H100": (989.4, 494.7, 66.9),  # SXM5 ("NVIDIA H100 80GB HBM3")
+    "H200": (989.4, 494.7, 66.9),  # SXM
+    "A100": (312.0, 156.0, 19.5),  # SXM4 and PCIe
+    "A6000": (154.8, 77.4, 38.7),  # RTX A6000
+    "L40S": (362.1, 183.0, 91.6),
+    "L4": (121.0, 60.0, 30.3),
+}
 AUDIO_DIM = {"small": 35, "paper": 4800}  # the default librosa features; the papers' Jukebox features
 
 
@@ -48,16 +64,31 @@ def build(model_name: str, style_dim: int) -> DanceDiffusion:
     return model
 
 
-def peak_tflops(device: torch.device) -> float | None:
+def peak_tflops(device: torch.device, bf16: bool) -> float | None:
+    """The device's dense peak for the precision of the run, or None (CPU, or a GPU not in the table)."""
     if device.type != "cuda":
         return None
     name = torch.cuda.get_device_name(device)
-    return next((v for k, v in PEAK_BF16_TFLOPS.items() if k in name), None)
+    peaks = next((v for k, v in PEAK_TFLOPS.items() if k in name), None)
+    if peaks is None:
+        return None
+    if bf16:
+        return peaks[0]
+    return peaks[1] if torch.get_float32_matmul_precision() != "highest" else peaks[2]
 
 
-def bench(model_name: str, device: torch.device, batch: int, steps: int, bf16: bool) -> dict[str, float]:
+def bench(
+    model_name: str,
+    device: torch.device,
+    batch: int,
+    steps: int,
+    bf16: bool,
+    compile: bool = False,
+    gradient_checkpointing: bool = False,
+) -> dict[str, float]:
     torch.manual_seed(0)
     model = build(model_name, style_dim=384).to(device).train()
+    model.denoiser.gradient_checkpointing = gradient_checkpointing
     optimizer = model.configure_optimizers()
     audio_dim = model.denoiser.audio_dim
     data = {
@@ -76,10 +107,15 @@ def bench(model_name: str, device: torch.device, batch: int, steps: int, bf16: b
 
     from torch.utils.flop_counter import FlopCounterMode
 
+    model.denoiser.gradient_checkpointing = False  # count the model's FLOPs, not the recomputation
     counter = FlopCounterMode(display=False)
     with counter:
         step()
     flops_per_step = counter.get_total_flops()
+    model.denoiser.gradient_checkpointing = gradient_checkpointing
+    if compile:
+        model.denoiser.compile()
+        step()  # compiles
     step()  # warm-up
     if device.type == "cuda":
         torch.cuda.synchronize(device)
@@ -102,8 +138,9 @@ def bench(model_name: str, device: torch.device, batch: int, steps: int, bf16: b
         "achieved_tflops": flops_per_step / seconds / 1e12,
         "peak_memory_gib": peak_gib,
     }
-    peak = peak_tflops(device)
+    peak = peak_tflops(device, bf16)
     if peak:
+        result["peak_tflops"] = peak
         result["mfu_percent"] = 100 * result["achieved_tflops"] / peak
     return result
 
@@ -115,21 +152,32 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--batch", type=int, default=None, help="default: 32 on CPU, 128 on GPU (DGSDP's batch)")
     parser.add_argument("--steps", type=int, default=5)
     parser.add_argument("--bf16", action=argparse.BooleanOptionalAction, default=None, help="default: on for CUDA")
+    parser.add_argument("--compile", action="store_true", help="torch.compile the denoiser (as compile=true)")
+    parser.add_argument("--gradient-checkpointing", action="store_true", help="recompute layer activations")
     args = parser.parse_args(argv)
     device = torch.device(args.device)
+    if device.type == "cuda":
+        torch.set_float32_matmul_precision("high")  # TF32, as training on CUDA
     bf16 = device.type == "cuda" if args.bf16 is None else args.bf16
     batch = args.batch or (128 if device.type == "cuda" else 32)
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else f"CPU ({torch.get_num_threads()} threads)"
-    print(f"device: {name}; batch {batch}; bf16 autocast: {bf16}; {args.steps} timed steps")
     print(
-        f"{'model':<7}{'params':>9}{'samples/s':>11}{'step s':>9}{'TFLOP/step':>12}{'TFLOP/s':>9}{'peak GiB':>10}{'MFU %':>7}"
+        f"device: {name}; batch {batch}; bf16 autocast: {bf16}; compile: {args.compile}; "
+        f"gradient checkpointing: {args.gradient_checkpointing}; {args.steps} timed steps"
+    )
+    if device.type == "cpu":
+        print("MFU: n/a on CPU (no reliable peak figure); peak memory = the process's peak resident set size")
+    print(
+        f"{'model':<7}{'params':>9}{'samples/s':>11}{'step s':>9}{'TFLOP/step':>12}{'TFLOP/s':>9}{'peak GiB':>10}"
+        f"{'device peak TFLOP/s':>21}{'MFU %':>7}"
     )
     for model_name in args.models:
-        r = bench(model_name, device, batch, args.steps, bf16)
-        mfu = f"{r['mfu_percent']:.1f}" if "mfu_percent" in r else "-"
+        r = bench(model_name, device, batch, args.steps, bf16, args.compile, args.gradient_checkpointing)
+        mfu = f"{r['mfu_percent']:.1f}" if "mfu_percent" in r else "n/a"
+        peak = f"{r['peak_tflops']:.1f}" if "peak_tflops" in r else "n/a"
         print(
             f"{model_name:<7}{r['params_M']:>8.2f}M{r['samples_per_s']:>11.1f}{r['step_s']:>9.3f}"
-            f"{r['tflops_per_step']:>12.3f}{r['achieved_tflops']:>9.2f}{r['peak_memory_gib']:>10.2f}{mfu:>7}"
+            f"{r['tflops_per_step']:>12.3f}{r['achieved_tflops']:>9.2f}{r['peak_memory_gib']:>10.2f}{peak:>21}{mfu:>7}"
         )
 
 

@@ -16,6 +16,10 @@ from dgsdp.resources import CONFIG_DIR, CONFIG_MODULE, CONFIG_PATH, register_res
 register_resolvers()
 register_schemas()
 
+if not OmegaConf.has_resolver("dgsdp_precision"):  # conf/trainer/ddp.yaml: bf16-mixed on GPUs, 32-true on CPUs
+    from dgsdp.training.distributed import precision_for
+
+    OmegaConf.register_new_resolver("dgsdp_precision", precision_for)
 
 @contextlib.contextmanager
 def _hydra_runtime(cfg: DictConfig) -> Iterator[None]:

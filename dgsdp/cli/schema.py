@@ -26,6 +26,10 @@ class DenoiserConfig:
     dropout: float = 0.1
     music_encoder_layers: int = 2
     modulation_shared: bool = True
+    rotary_placement: str = "qk"
+    cross_attention_rotary: bool = False
+    null_music: str = "input"
+    gradient_checkpointing: bool = False
     ema_decay: float = 0.9999
 
 

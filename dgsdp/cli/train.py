@@ -24,6 +24,8 @@ from dgsdp.errors import CheckpointError, ConfigError, DgsdpError
 from dgsdp.registry import build
 from dgsdp.training.module import DanceDiffusion, read_checkpoint, wandb_run_id
 from dgsdp.training.spec import RunSpec
+from dgsdp.training.distributed import is_writer, log_files_on_writer_only
+from dgsdp.training.resume import check_resume_has_work
 from dgsdp.utils.io import atomic_write_text
 
 log = logging.getLogger(__name__)
@@ -77,7 +79,9 @@ def check_config(cfg: DictConfig) -> dict[str, Any] | None:
         check_options("protocol", as_list(cfg.evaluate) or [], "evaluate")
     if not cfg.get("ckpt_path"):
         return None
-    return read_checkpoint(str(cfg.ckpt_path))
+    checkpoint = read_checkpoint(str(cfg.ckpt_path))
+    check_resume_has_work(cfg.trainer, checkpoint)
+    return checkpoint
 
 
 def _resume_logger_ids(cfg: DictConfig, ckpt: dict[str, Any]) -> None:
@@ -93,6 +97,7 @@ def _resume_logger_ids(cfg: DictConfig, ckpt: dict[str, Any]) -> None:
 
 def train(cfg: DictConfig) -> dict[str, Any]:
     """Run one training job. Returns the final metrics and the checkpoint folder."""
+    log_files_on_writer_only()  # data-parallel runs: one log file, written by rank 0
     resume = check_config(cfg)
     L.seed_everything(int(cfg.seed), workers=True)  # seed 0 is a seed, not "no seed"
 
@@ -125,7 +130,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     record = {"config": spec.record, "groups": spec.groups, "n_params": n_params}
     for logger in loggers:
         logger.log_hyperparams(record)
-        if type(logger).__name__ == "WandbLogger":
+        if type(logger).__name__ == "WandbLogger" and is_writer():
             # a readable copy in the run's files folder (uploaded with the run; offline runs keep it on disk)
             run_files = Path(logger.experiment.dir)
             atomic_write_text(run_files / "dgsdp_config.yaml", OmegaConf.to_yaml(OmegaConf.create(record)))

@@ -22,7 +22,7 @@ from tqdm.auto import tqdm
 
 from dgsdp.audio import AudioEncoder, FeatureCache, load_audio
 from dgsdp.data.aistpp import check_root, load_motion_pkl, music_path, parse_name, process_motion, read_split
-from dgsdp.errors import DataError
+from dgsdp.errors import ConfigError, DataError
 from dgsdp.motion import POSE_DIM, MinMaxNormalizer
 from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
 from dgsdp.utils.io import DiskCache, file_hash
@@ -139,18 +139,47 @@ class WindowDataset(Dataset):
             "start": start,
         }
         if seq.audio is not None:
-            item["audio"] = torch.from_numpy(np.ascontiguousarray(self._audio_window(seq.audio, start))).float()
+            # a copy of the window: the song's features may be a read-only memory map
+            item["audio"] = torch.from_numpy(np.array(self._audio_window(seq.audio, start), dtype=np.float32))
         return item
 
 
-class EpochShuffleSampler(Sampler[int]):
-    """A shuffle whose order depends only on (seed, epoch), so a resumed run sees the same batches as an
-    uninterrupted one (Lightning calls ``set_epoch`` at the start of every epoch). ``skip`` drops the first
-    indices of the next pass (a run resumed mid-epoch)."""
+def distributed_rank_world() -> tuple[int, int]:
+    """(rank, world size) of this process: from ``torch.distributed`` once initialised, else (0, 1)."""
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        return torch.distributed.get_rank(), torch.distributed.get_world_size()
+    return 0, 1
 
-    def __init__(self, length: int, seed: int) -> None:
+
+class EpochShuffleSampler(Sampler[int]):
+    """This rank's share of a shuffle whose order depends only on (seed, epoch).
+
+    A resumed run therefore sees the same batches as an uninterrupted one (Lightning calls ``set_epoch`` at the
+    start of every epoch), on every rank. Under data parallelism (``world_size`` processes; read from
+    ``torch.distributed`` when not given) every rank draws the same permutation of the ``length`` items and takes
+    every ``world_size``-th item from position ``rank``, so the ranks' shards are disjoint. The permutation is
+    cut to ``world_size * (length // world_size)`` items first, so every rank has the same number of items and
+    of batches (DDP needs that); the few items cut (fewer than ``world_size``) differ from epoch to epoch.
+    With the loader's ``drop_last``, an epoch serves each item of a prefix of the permutation exactly once.
+
+    ``skip`` drops the first items of this rank's next pass (a run resumed mid-epoch).
+    """
+
+    def __init__(self, length: int, seed: int, *, rank: int | None = None, world_size: int | None = None) -> None:
+        if rank is None or world_size is None:
+            found_rank, found_world = distributed_rank_world()
+            rank = found_rank if rank is None else rank
+            world_size = found_world if world_size is None else world_size
+        if not 0 <= rank < world_size:
+            raise ValueError(f"rank {rank} is not in [0, {world_size})")
+        if length < world_size:
+            raise DataError(
+                f"{length} training windows cannot be shared by {world_size} processes; use fewer devices or more data"
+            )
         self.length = length
         self.seed = seed
+        self.rank = rank
+        self.world_size = world_size
         self.epoch = 0
         self.skip = 0
 
@@ -158,21 +187,48 @@ class EpochShuffleSampler(Sampler[int]):
         self.epoch = epoch
 
     def __len__(self) -> int:
-        return self.length
+        """Items per rank per epoch (before ``skip``)."""
+        return self.length // self.world_size
+
+    def order(self) -> list[int]:
+        """The whole epoch's permutation (the same on every rank)."""
+        g = torch.Generator().manual_seed(self.seed * 100_003 + self.epoch)
+        return torch.randperm(self.length, generator=g).tolist()
 
     def __iter__(self) -> Iterator[int]:
-        g = torch.Generator().manual_seed(self.seed * 100_003 + self.epoch)
-        order = torch.randperm(self.length, generator=g).tolist()
+        shard = self.order()[self.rank : len(self) * self.world_size : self.world_size]
         skip, self.skip = self.skip, 0
-        return iter(order[skip:])
+        return iter(shard[skip:])
 
 
 class ResumableLoader(DataLoader):
     """A DataLoader over an :class:`EpochShuffleSampler` that Lightning can checkpoint mid-epoch: its state is the
-    number of batches already served this epoch, which a resumed run skips."""
+    number of batches already served this epoch (the same on every rank), which a resumed run skips.
 
-    def __init__(self, dataset: Dataset, *, batch_size: int, seed: int, **kwargs: Any) -> None:
-        super().__init__(dataset, batch_size=batch_size, sampler=EpochShuffleSampler(len(dataset), seed), **kwargs)
+    Keep Lightning from replacing the sampler (``Trainer(use_distributed_sampler=False)``, as in
+    ``conf/trainer/default.yaml``): the sampler shards the data across ranks itself, and a
+    ``DistributedSampler`` wrapped around it would split an order already shortened by a resume a second time.
+    """
+
+    def __init__(
+        self,
+        dataset: Dataset,
+        *,
+        batch_size: int,
+        seed: int,
+        rank: int | None = None,
+        world_size: int | None = None,
+        **kwargs: Any,
+    ) -> None:
+        if "sampler" in kwargs or "shuffle" in kwargs:
+            raise ConfigError(
+                "the training loader shards the data across processes itself and cannot take another sampler: "
+                "keep trainer.use_distributed_sampler=false (conf/trainer/default.yaml)"
+            )
+        sampler = EpochShuffleSampler(len(dataset), seed, rank=rank, world_size=world_size)
+        if "drop_last" not in kwargs:  # full batches only, unless a rank's share is smaller than one batch
+            kwargs["drop_last"] = len(sampler) > batch_size
+        super().__init__(dataset, batch_size=batch_size, sampler=sampler, **kwargs)
         self.served = 0
 
     def __iter__(self) -> Iterator[Any]:
@@ -191,6 +247,8 @@ class ResumableLoader(DataLoader):
 class DanceDataModule(L.LightningDataModule):
     """Windows of AIST++-layout data for training (stride 0.5 s) and validation/testing (stride 2.5 s).
 
+    ``num_workers`` loader processes (kept alive across epochs with ``persistent_workers``) and ``pin_memory``
+    (page-locked batches, for asynchronous copies to a GPU) are the data-loading speed settings.
     ``audio_encoder`` None with ``waveform_sample_rate`` set yields raw waveform windows; both None yields motion
     only. If ``root`` has no dataset and ``synthetic`` is set, the synthetic dataset is generated there first.
     The normaliser is fitted on every frame of the training sequences.
@@ -212,6 +270,8 @@ class DanceDataModule(L.LightningDataModule):
         test_split: str = "test",
         batch_size: int = 64,
         num_workers: int = 0,
+        pin_memory: bool = False,
+        persistent_workers: bool = True,
         max_sequences: int | None = None,
         synthetic: dict[str, Any] | None = None,
         vocab: GenreVocab = AISTPP_GENRES,
@@ -231,6 +291,8 @@ class DanceDataModule(L.LightningDataModule):
         self.splits = {"train": train_split, "val": val_split, "test": test_split}
         self.batch_size = batch_size
         self.num_workers = num_workers
+        self.pin_memory = pin_memory
+        self.persistent_workers = persistent_workers
         self.max_sequences = max_sequences
         self.synthetic = dict(synthetic) if synthetic else None
         self.vocab = vocab
@@ -310,12 +372,13 @@ class DanceDataModule(L.LightningDataModule):
 
     def _loader(self, name: str, shuffle: bool) -> DataLoader:
         dataset = self.datasets[name]
-        kwargs = {"num_workers": self.num_workers, "persistent_workers": self.num_workers > 0}
+        kwargs = {
+            "num_workers": self.num_workers,
+            "persistent_workers": self.persistent_workers and self.num_workers > 0,
+            "pin_memory": self.pin_memory,
+        }
         if shuffle:
-            drop_last = len(dataset) > self.batch_size
-            return ResumableLoader(
-                dataset, batch_size=self.batch_size, seed=self.shuffle_seed, drop_last=drop_last, **kwargs
-            )
+            return ResumableLoader(dataset, batch_size=self.batch_size, seed=self.shuffle_seed, **kwargs)
         return DataLoader(dataset, batch_size=self.batch_size, shuffle=False, **kwargs)
 
     def train_dataloader(self) -> DataLoader:

@@ -7,36 +7,59 @@ predicts the clean motion x0 (B, T, 151).
 - Music: Linear(Da, d) (plus Linear(ds, d) of the style in ``concat`` injection: a linear layer over the
   concatenation [music, style] is exactly the sum of the two projections), a 2-layer rotary transformer
   encoder, tokens mean-pooled -> LN -> Linear -> SiLU -> Linear added to the FiLM vector.
-- Condition dropout for classifier-free guidance: a dropped music input is replaced by a learned null sequence
-  (before the music encoder; EDGE replaces the encoder output, which is an equally free learned constant when no
-  style is concatenated), a dropped style by a learned null style vector. Music and style drop separately.
+- Condition dropout for classifier-free guidance: a dropped style is a learned null style vector. A dropped music
+  input is, with ``null_music="input"`` (default), a learned null sequence before the music encoder, so a style
+  concatenated to the music survives a dropped music and the two drop separately; with ``"output"`` (EDGE), a
+  learned null sequence replaces the encoder's output tokens and a learned null vector (d parameters) the pooled
+  vector, which also drops a concatenated style with the music.
 - Cross-attention memory: LayerNorm(concat(music tokens, time tokens)).
 - Decoder layer: pre-norm self-attention, cross-attention, [style modulation], feed-forward; each sub-block's
-  output passes FiLM by the time vector before the residual add.
+  output passes dropout, then FiLM by the time vector, before the residual add (EDGE's order).
+- Rotary positions in every self-attention, on projected queries and keys per head (``rotary_placement="qk"``,
+  default) or on the layer input over the full width (``"input"``, EDGE); ``cross_attention_rotary`` also rotates
+  the cross-attention's queries and keys (EDGE does; memory positions 0..149 music, 150..151 time tokens).
+- ``gradient_checkpointing`` recomputes each encoder/decoder layer's activations in the backward pass (less
+  memory for long windows, about a third more compute).
+
+The EDGE architecture is ``rotary_placement="input", cross_attention_rotary=True, null_music="output"`` (see
+docs/edge.md).
 """
 
 from __future__ import annotations
 
 import torch
 from torch import nn
+from torch.utils.checkpoint import checkpoint
 
 from dgsdp.model.layers import Attention, EncoderLayer, FeedForward, FiLM, sinusoidal_embedding
 from dgsdp.registry import register
 from dgsdp.style.injection import StyleModulation
 
 INJECTIONS = ("modulation", "concat")
+NULL_MUSIC = ("input", "output")
 
 
 class DecoderLayer(nn.Module):
-    def __init__(self, d_model: int, n_heads: int, ff_dim: int, dropout: float) -> None:
+    def __init__(
+        self,
+        d_model: int,
+        n_heads: int,
+        ff_dim: int,
+        dropout: float,
+        *,
+        rotary_placement: str = "qk",
+        cross_attention_rotary: bool = False,
+    ) -> None:
         super().__init__()
         self.norm1, self.norm2, self.norm3 = (
             nn.LayerNorm(d_model),
             nn.LayerNorm(d_model),
             nn.LayerNorm(d_model),
         )
-        self.self_attn = Attention(d_model, n_heads, dropout, rotary=True)
-        self.cross_attn = Attention(d_model, n_heads, dropout, rotary=False)
+        self.self_attn = Attention(d_model, n_heads, dropout, rotary=True, rotary_placement=rotary_placement)
+        self.cross_attn = Attention(
+            d_model, n_heads, dropout, rotary=cross_attention_rotary, rotary_placement=rotary_placement
+        )
         self.ff = FeedForward(d_model, ff_dim, dropout)
         self.film1, self.film2, self.film3 = FiLM(d_model), FiLM(d_model), FiLM(d_model)
         self.drop = nn.Dropout(dropout)
@@ -49,11 +72,11 @@ class DecoderLayer(nn.Module):
         style: torch.Tensor | None = None,
         modulation: StyleModulation | None = None,
     ) -> torch.Tensor:
-        x = x + self.drop(self.film1(self.self_attn(self.norm1(x)), t_cond))
-        x = x + self.drop(self.film2(self.cross_attn(self.norm2(x), memory), t_cond))
+        x = x + self.film1(self.drop(self.self_attn(self.norm1(x))), t_cond)
+        x = x + self.film2(self.drop(self.cross_attn(self.norm2(x), memory)), t_cond)
         if modulation is not None and style is not None:
             x = modulation(x, style)
-        return x + self.drop(self.film3(self.ff(self.norm3(x)), t_cond))
+        return x + self.film3(self.drop(self.ff(self.norm3(x))), t_cond)
 
 
 @register("model", "dgsdp.model.DanceDenoiser")
@@ -77,10 +100,18 @@ class DanceDenoiser(nn.Module):
         modulation_variant: str = "official",
         modulation_shared: bool = True,
         also_concat: bool = False,
+        rotary_placement: str = "qk",
+        cross_attention_rotary: bool = False,
+        null_music: str = "input",
+        gradient_checkpointing: bool = False,
     ) -> None:
         super().__init__()
         if style_dim and style_injection not in INJECTIONS:
             raise ValueError(f"unknown style injection {style_injection!r}; use one of {INJECTIONS}")
+        if null_music not in NULL_MUSIC:
+            raise ValueError(f"unknown null_music {null_music!r}; use one of {NULL_MUSIC}")
+        self.null_music_at = null_music
+        self.gradient_checkpointing = gradient_checkpointing
         self.pose_dim, self.seq_len, self.d_model = pose_dim, seq_len, d_model
         self.audio_dim, self.style_dim = audio_dim, style_dim
         self.use_modulation = bool(style_dim) and style_injection == "modulation"
@@ -93,17 +124,32 @@ class DanceDenoiser(nn.Module):
 
         self.music_proj = nn.Linear(audio_dim, d_model) if audio_dim else None
         self.null_music = nn.Parameter(torch.randn(1, seq_len, d_model) * 0.02)
+        # EDGE: a learned null for the pooled music vector too (the null token sequence replaces the encoder output)
+        self.null_music_hidden = nn.Parameter(torch.randn(1, d_model) * 0.02) if null_music == "output" else None
         self.style_concat_proj = nn.Linear(style_dim, d_model, bias=False) if self.use_concat else None
         self.null_style = nn.Parameter(torch.zeros(style_dim)) if style_dim else None
         self.music_encoder = nn.Sequential(
-            *(EncoderLayer(d_model, n_heads, ff_dim, dropout) for _ in range(music_encoder_layers))
+            *(
+                EncoderLayer(d_model, n_heads, ff_dim, dropout, rotary_placement=rotary_placement)
+                for _ in range(music_encoder_layers)
+            )
         )
         self.music_pool = nn.Sequential(
             nn.LayerNorm(d_model), nn.Linear(d_model, d_model), nn.SiLU(), nn.Linear(d_model, d_model)
         )
         self.memory_norm = nn.LayerNorm(d_model)
 
-        self.layers = nn.ModuleList(DecoderLayer(d_model, n_heads, ff_dim, dropout) for _ in range(n_layers))
+        self.layers = nn.ModuleList(
+            DecoderLayer(
+                d_model,
+                n_heads,
+                ff_dim,
+                dropout,
+                rotary_placement=rotary_placement,
+                cross_attention_rotary=cross_attention_rotary,
+            )
+            for _ in range(n_layers)
+        )
         self.modulations: nn.ModuleList | None = None
         if self.use_modulation:
             count = 1 if modulation_shared else n_layers
@@ -111,6 +157,12 @@ class DanceDenoiser(nn.Module):
                 StyleModulation(d_model, style_dim, variant=modulation_variant) for _ in range(count)
             )
         self.output_proj = nn.Linear(d_model, pose_dim)
+
+    def _run(self, layer: nn.Module, *args: torch.Tensor | nn.Module | None) -> torch.Tensor:
+        """``layer(*args)``, recomputing its activations in the backward pass when gradient checkpointing is on."""
+        if self.gradient_checkpointing and self.training and torch.is_grad_enabled():
+            return checkpoint(layer, *args, use_reentrant=False)
+        return layer(*args)
 
     def _style(self, style: torch.Tensor | None, keep: torch.Tensor, batch: int) -> torch.Tensor | None:
         if not self.style_dim:
@@ -145,22 +197,30 @@ class DanceDenoiser(nn.Module):
         t_tokens = self.time_tokens(t_hidden).view(b, 2, self.d_model)
 
         null = self.null_music[:, :n].expand(b, -1, -1)
+        at_input = self.null_music_at == "input"
         if music is None or self.music_proj is None:
-            h_music = null
+            h_music, keep_music = null, torch.zeros_like(keep_music)
         else:
             if music.shape[:2] != (b, n) or music.shape[-1] != self.audio_dim:
                 raise ValueError(f"music features {tuple(music.shape)} do not match ({b}, {n}, {self.audio_dim})")
-            h_music = torch.where(keep_music[:, None, None], self.music_proj(music), null)
+            h_music = self.music_proj(music)
+            if at_input:
+                h_music = torch.where(keep_music[:, None, None], h_music, null)
         s = self._style(style, keep_style, b)
         if self.style_concat_proj is not None:
             h_style = self.style_concat_proj(s)
             h_music = h_music + (h_style if h_style.ndim == 3 else h_style[:, None, :])
-        tokens = self.music_encoder(h_music)
-        t_cond = t_cond + self.music_pool(tokens.mean(dim=1))
+        tokens = self._run(self.music_encoder, h_music)
+        if at_input:
+            t_cond = t_cond + self.music_pool(tokens.mean(dim=1))
+        else:  # EDGE: null tokens after the encoder and a null pooled vector
+            tokens = torch.where(keep_music[:, None, None], tokens, null)
+            hidden = torch.where(keep_music[:, None], self.music_pool(tokens.mean(dim=1)), self.null_music_hidden)
+            t_cond = t_cond + hidden
         memory = self.memory_norm(torch.cat((tokens, t_tokens), dim=1))
 
         h = self.input_proj(x_t)
         for i, layer in enumerate(self.layers):
             mod = None if self.modulations is None else self.modulations[min(i, len(self.modulations) - 1)]
-            h = layer(h, memory, t_cond, s, mod)
+            h = self._run(layer, h, memory, t_cond, s, mod)
         return self.output_proj(h)

@@ -12,8 +12,8 @@ from torch import nn
 class RotaryEmbedding(nn.Module):
     """Rotary position embedding (RoPE) applied to queries and keys, per head, over frame positions.
 
-    EDGE rotates the layer input before the attention in-projection; we rotate the projected queries and keys
-    (the standard formulation, relative-position exact). Parameter counts are the same.
+    Applied per head to projected queries and keys, or to the layer input over the full width (EDGE); see
+    :class:`Attention`.
     """
 
     def __init__(self, head_dim: int, base: float = 10000.0) -> None:
@@ -24,7 +24,7 @@ class RotaryEmbedding(nn.Module):
         self.register_buffer("inv_freq", inv_freq, persistent=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """x (B, H, T, Dh) -> same shape, rotated by position."""
+        """x (..., T, D) -> same shape, rotated by position (pairs of adjacent channels)."""
         t = torch.arange(x.shape[-2], device=x.device, dtype=self.inv_freq.dtype)
         freqs = torch.outer(t, self.inv_freq)  # (T, Dh/2)
         cos, sin = freqs.cos().to(x.dtype), freqs.sin().to(x.dtype)
@@ -33,19 +33,31 @@ class RotaryEmbedding(nn.Module):
         return out.flatten(-2)
 
 
-class Attention(nn.Module):
-    """Multi-head attention through ``F.scaled_dot_product_attention``; optional rotary on q and k."""
+ROTARY_PLACEMENTS = ("qk", "input")
 
-    def __init__(self, d_model: int, n_heads: int, dropout: float, rotary: bool) -> None:
+
+class Attention(nn.Module):
+    """Multi-head attention through ``F.scaled_dot_product_attention``, with optional rotary positions.
+
+    ``rotary_placement``: ``"qk"`` rotates the projected queries and keys per head (the standard formulation);
+    ``"input"`` rotates the inputs of the query and key projections over the full width, as EDGE does (values
+    come from the unrotated input). Either way the parameters are the same.
+    """
+
+    def __init__(self, d_model: int, n_heads: int, dropout: float, rotary: bool, rotary_placement: str = "qk") -> None:
         super().__init__()
         if d_model % n_heads:
             raise ValueError(f"width {d_model} is not divisible by {n_heads} heads")
+        if rotary_placement not in ROTARY_PLACEMENTS:
+            raise ValueError(f"unknown rotary placement {rotary_placement!r}; use one of {ROTARY_PLACEMENTS}")
         self.n_heads = n_heads
         self.q = nn.Linear(d_model, d_model)
         self.kv = nn.Linear(d_model, 2 * d_model)
         self.out = nn.Linear(d_model, d_model)
         self.dropout = dropout
-        self.rotary = RotaryEmbedding(d_model // n_heads) if rotary else None
+        self.rotary_placement = rotary_placement
+        width = d_model // n_heads if rotary_placement == "qk" else d_model
+        self.rotary = RotaryEmbedding(width) if rotary else None
 
     def _heads(self, x: torch.Tensor) -> torch.Tensor:
         b, t, d = x.shape
@@ -54,10 +66,18 @@ class Attention(nn.Module):
     def forward(self, x: torch.Tensor, memory: torch.Tensor | None = None) -> torch.Tensor:
         """x (B, T, d) attends to ``memory`` (B, S, d), or to itself if None."""
         src = x if memory is None else memory
-        q = self._heads(self.q(x))
-        k, v = (self._heads(a) for a in self.kv(src).chunk(2, dim=-1))
-        if self.rotary is not None:
-            q, k = self.rotary(q), self.rotary(k)
+        if self.rotary is not None and self.rotary_placement == "input":
+            x_rot = self.rotary(x)
+            src_rot = x_rot if memory is None else self.rotary(src)
+            w_k, w_v = self.kv.weight.chunk(2, dim=0)
+            b_k, b_v = self.kv.bias.chunk(2)
+            q = self._heads(self.q(x_rot))
+            k, v = self._heads(F.linear(src_rot, w_k, b_k)), self._heads(F.linear(src, w_v, b_v))
+        else:
+            q = self._heads(self.q(x))
+            k, v = (self._heads(a) for a in self.kv(src).chunk(2, dim=-1))
+            if self.rotary is not None:
+                q, k = self.rotary(q), self.rotary(k)
         y = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
         return self.out(y.transpose(1, 2).flatten(2))
 
@@ -83,10 +103,10 @@ class FiLM(nn.Module):
 class EncoderLayer(nn.Module):
     """Pre-norm transformer encoder layer with rotary self-attention (the music encoder)."""
 
-    def __init__(self, d_model: int, n_heads: int, ff_dim: int, dropout: float) -> None:
+    def __init__(self, d_model: int, n_heads: int, ff_dim: int, dropout: float, rotary_placement: str = "qk") -> None:
         super().__init__()
         self.norm1, self.norm2 = nn.LayerNorm(d_model), nn.LayerNorm(d_model)
-        self.attn = Attention(d_model, n_heads, dropout, rotary=True)
+        self.attn = Attention(d_model, n_heads, dropout, rotary=True, rotary_placement=rotary_placement)
         self.ff = FeedForward(d_model, ff_dim, dropout)
         self.drop = nn.Dropout(dropout)
 

@@ -81,21 +81,24 @@ class StyleBank:
                 raise DataError(f"The style bank has no rows for genre index(es) {sorted(set(missing.tolist()))}.")
         return genre_idx
 
-    def sample(self, genre_idx: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+    def sample(
+        self, genre_idx: torch.Tensor, generator: torch.Generator | None = None, *, check: bool = True
+    ) -> torch.Tensor:
         """One random row of each item's genre: ``genre_idx (B,)`` -> ``(B, dim)`` on the bank's device.
 
         ``generator`` (optional, for reproducibility) must live on the bank's device; see :meth:`to`.
+        ``check=False`` skips the range checks, which read values back from the device (training steps).
         """
-        genre_idx = self._check(genre_idx)
+        genre_idx = self._check(genre_idx) if check else genre_idx.to(self.vectors.device, torch.long)
         u = torch.rand(genre_idx.shape, generator=generator, device=self.vectors.device)
         counts = self.counts[genre_idx]
         pick = torch.minimum((u * counts).long(), counts - 1)  # uniform in [0, count)
         rows = self._order[self._offsets[genre_idx] + pick]
         return self.vectors[rows]
 
-    def mean_for(self, genre_idx: torch.Tensor) -> torch.Tensor:
-        """Mean row of each item's genre: ``genre_idx (B,)`` -> ``(B, dim)``."""
-        return self.means[self._check(genre_idx)]
+    def mean_for(self, genre_idx: torch.Tensor, *, check: bool = True) -> torch.Tensor:
+        """Mean row of each item's genre: ``genre_idx (B,)`` -> ``(B, dim)``; ``check`` as in :meth:`sample`."""
+        return self.means[self._check(genre_idx) if check else genre_idx.to(self.vectors.device, torch.long)]
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         """Plain tensors, safe for ``torch.load(weights_only=True)``."""

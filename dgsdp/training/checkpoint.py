@@ -61,3 +61,9 @@ class AtomicModelCheckpoint(ModelCheckpoint):
             log.warning("checkpoint writer %s kept as it is: checkpoints are not written atomically", current)
             return
         strategy.checkpoint_io = AtomicCheckpointIO(current)
+
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        """Keep the final state too: a run that stops between two periodic checkpoints (``max_steps`` not a
+        multiple of ``every_n_train_steps``) writes ``last.ckpt`` at its last step."""
+        if self.save_last and not self._should_skip_saving_checkpoint(trainer):
+            self._save_last_checkpoint(trainer, self._monitor_candidates(trainer))

@@ -36,6 +36,13 @@ def plain(obj: Any) -> Any:
     return obj
 
 
+def step_seed(seed: int, step: int, rank: int = 0, world_size: int = 1) -> int:
+    """The RNG seed of training step ``step`` on data-parallel rank ``rank`` of ``world_size``: distinct for every
+    (step, rank) pair of a run (torch's CPU generator keeps only the low 32 bits of a seed, so the rank is
+    interleaved with the step rather than put in high bits). One process: ``seed * 1_000_003 + step``."""
+    return seed * 1_000_003 + step * world_size + rank
+
+
 class DanceDiffusion(L.LightningModule):
     """Trains the denoiser on normalised 151-d windows; samples with the EMA weights.
 
@@ -73,9 +80,16 @@ class DanceDiffusion(L.LightningModule):
 
     @property
     def style_bank(self) -> StyleBank | None:
+        """The style bank of the ``style_vectors``/``style_genre_index`` buffers, built once and rebuilt only when
+        those buffers change (new values, device or dtype), so training steps never rebuild or validate it."""
         if not self.style_dim or len(self.style_vectors) == 0:
             return None
-        return StyleBank(self.style_vectors, self.style_genre_index, self.n_genres)
+        key = tuple((b.data_ptr(), b._version, b.device, b.dtype) for b in (self.style_vectors, self.style_genre_index))
+        cached = getattr(self, "_style_bank_cache", None)
+        if cached is None or cached[0] != key:
+            cached = (key, StyleBank(self.style_vectors, self.style_genre_index, self.n_genres))
+            self._style_bank_cache = cached
+        return cached[1]
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint["hyper_parameters"] = plain(dict(self.hparams))
@@ -88,11 +102,13 @@ class DanceDiffusion(L.LightningModule):
         checkpoint["logger_run_ids"] = run_ids
 
     # --- conditioning ------------------------------------------------------------------------------------
-    def style_for(self, genre: torch.Tensor, random: bool) -> torch.Tensor | None:
+    def style_for(self, genre: torch.Tensor, random: bool, check: bool = True) -> torch.Tensor | None:
+        """Style vectors (B, ds) for genre indices (B,): a random bank row of each genre, or the genre's mean.
+        ``check=False`` skips the range checks (they read values back from the device)."""
         bank = self.style_bank
         if bank is None:
             return None
-        return bank.sample(genre) if random else bank.mean_for(genre)
+        return bank.sample(genre, check=check) if random else bank.mean_for(genre, check=check)
 
     def _loss(
         self, denoiser: torch.nn.Module, batch: dict[str, Any], train: bool, generator=None
@@ -103,7 +119,8 @@ class DanceDiffusion(L.LightningModule):
         t = self.diffusion.sample_timesteps(b, x0.device, generator)
         noise = torch.randn(x0.shape, device=x0.device, generator=generator)
         x_t = self.diffusion.q_sample(x0, t, noise)
-        style = self.style_for(batch["genre"], random=train)
+        # genre indices come from the dataset's vocabulary (checked when it was read): no device read-back here
+        style = self.style_for(batch["genre"], random=train, check=False)
         if train:
             keep_music = torch.rand(b, device=x0.device) >= cond.music_drop_prob
             keep_style = torch.rand(b, device=x0.device) >= cond.style_drop_prob
@@ -119,10 +136,20 @@ class DanceDiffusion(L.LightningModule):
         self.log("loss", terms["loss"], prog_bar=True, logger=False, batch_size=batch["motion"].shape[0])
         return terms["loss"]
 
+    def on_fit_start(self) -> None:
+        config = self.spec.record
+        if self.device.type == "cuda":  # "high": float32 matmuls on TF32 tensor cores
+            torch.set_float32_matmul_precision(str(config.get("matmul_precision") or "high"))
+        if config.get("compile") and not getattr(self, "_compiled", False):
+            self.denoiser.compile()  # in place: parameter names (and checkpoints) unchanged
+            self._compiled = True
+        _ = self.style_bank  # built once here (on the training device), not in the first training step
+
     def on_train_batch_start(self, batch: Any, batch_idx: int) -> None:
-        # The randomness of a step (timesteps, noise, condition dropout, dropout) depends only on (seed, step),
-        # so a run resumed from a checkpoint continues exactly as an uninterrupted one would.
-        torch.manual_seed(self.spec.seed * 1_000_003 + self.global_step)
+        # The randomness of a step (timesteps, noise, condition dropout, dropout) depends only on (seed, step,
+        # rank): a run resumed from a checkpoint continues exactly as an uninterrupted one would, and each rank of
+        # a data-parallel run draws its own noise, timesteps and dropout masks (see step_seed).
+        torch.manual_seed(step_seed(self.spec.seed, self.global_step, self.global_rank, self.trainer.world_size))
 
     def optimizer_step(self, *args: Any, **kwargs: Any) -> None:
         super().optimizer_step(*args, **kwargs)

@@ -26,6 +26,8 @@ from dgsdp.registry import Kind, Source, build, check_plain, resolve
 SPEC_FORMAT = 2
 # Stored-config keys that name where to write or which device to use: never taken from a checkpoint.
 LOCAL_KEYS = ("cache_dir", "device")
+# Denoiser settings that change no weight shape: a run may resume with other values.
+SHAPE_FREE_MODEL_KEYS = ("dropout", "gradient_checkpointing")
 # The buildable parts of a run and the registry kind each must be.
 PART_KINDS: dict[str, Kind] = {
     "model": "model", "diffusion": "diffusion", "loss": "loss", "optimizer": "optimizer", "audio": "audio",
@@ -322,9 +324,16 @@ class RunSpec:
     # --- comparison ----------------------------------------------------------------------------------------
     def architecture(self) -> dict[str, Any]:
         """What the weights' shapes depend on: two runs must agree on it to share a checkpoint."""
+        import inspect
+
         c = self.conditioning
+        cls = resolve("model", self.model.get("_target_"), "model", "checkpoint")
+        defaults = {
+            name: p.default for name, p in inspect.signature(cls).parameters.items() if p.default is not p.empty
+        }
+        model = {**defaults, **self.model}  # a key an older run did not store has the value it was built with
         return {
-            "model": {k: v for k, v in self.model.items() if k not in ("dropout",)},
+            "model": {k: v for k, v in model.items() if k not in SHAPE_FREE_MODEL_KEYS},
             "audio_dim": c.audio_dim,
             "style_kind": c.style_kind,
             "style_dim": c.style_dim,

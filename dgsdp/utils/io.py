@@ -10,7 +10,9 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import struct
 import tempfile
+import zipfile
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
@@ -71,6 +73,37 @@ def file_hash(path: str | os.PathLike, length: int = 16, chunk_bytes: int = 1 <<
     return h.hexdigest()[:length]
 
 
+def mmap_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Memory-map every array of an uncompressed ``.npz`` (as :func:`atomic_save_npz` writes them): read-only
+    arrays whose pages are read on first touch and shared by every process mapping the file (loader workers,
+    the ranks of a data-parallel run on one machine). Raises ValueError for compressed or non-numeric members."""
+    arrays: dict[str, np.ndarray] = {}
+    with zipfile.ZipFile(path) as archive, open(path, "rb") as f:
+        for info in archive.infolist():
+            if info.compress_type != zipfile.ZIP_STORED or not info.filename.endswith(".npy"):
+                raise ValueError(f"{path}: {info.filename} is compressed or not an array")
+            f.seek(info.header_offset)
+            local_header = f.read(30)
+            if local_header[:4] != b"PK\x03\x04":
+                raise ValueError(f"{path}: bad zip entry {info.filename}")
+            name_bytes, extra_bytes = struct.unpack("<HH", local_header[26:30])
+            f.seek(info.header_offset + 30 + name_bytes + extra_bytes)
+            version = np.lib.format.read_magic(f)
+            if version == (1, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_1_0(f)
+            else:
+                shape, fortran, dtype = np.lib.format.read_array_header_2_0(f)
+            if dtype.hasobject:
+                raise ValueError(f"{path}: {info.filename} holds Python objects")
+            name = info.filename[: -len(".npy")]
+            if int(np.prod(shape)) == 0:
+                arrays[name] = np.empty(shape, dtype=dtype)
+            else:
+                order = "F" if fortran else "C"
+                arrays[name] = np.memmap(path, dtype=dtype, mode="r", offset=f.tell(), shape=shape, order=order)
+    return arrays
+
+
 class DiskCache:
     """A folder of ``.npz`` entries keyed by strings; entries appear atomically or not at all.
 
@@ -89,10 +122,17 @@ class DiskCache:
     def __contains__(self, key: str) -> bool:
         return self.path(key).is_file()
 
-    def load(self, key: str) -> dict[str, np.ndarray] | None:
+    def load(self, key: str, mmap: bool = False) -> dict[str, np.ndarray] | None:
+        """The entry's arrays, or None. ``mmap``: memory-mapped read-only (see :func:`mmap_npz`), for large
+        entries read in slices (audio features of whole songs)."""
         p = self.path(key)
         if not p.is_file():
             return None
+        if mmap:
+            try:
+                return mmap_npz(p)
+            except (OSError, ValueError, zipfile.BadZipFile, struct.error):
+                pass  # read it the ordinary way below (which drops a corrupt entry)
         try:
             with np.load(p, allow_pickle=False) as z:
                 return {k: z[k] for k in z.files}
@@ -104,8 +144,10 @@ class DiskCache:
     def save(self, key: str, arrays: Mapping[str, np.ndarray]) -> None:
         atomic_save_npz(self.path(key), arrays)
 
-    def get_or_compute(self, key: str, compute: Callable[[], Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
-        found = self.load(key)
+    def get_or_compute(
+        self, key: str, compute: Callable[[], Mapping[str, np.ndarray]], mmap: bool = False
+    ) -> dict[str, np.ndarray]:
+        found = self.load(key, mmap=mmap)
         if found is not None:
             self.hits += 1
             return found

@@ -148,3 +148,37 @@ def test_bad_files_through_the_cache(tmp_path):
     tiny = write_audio(tmp_path / "tiny.wav", np.zeros(50, np.float32), 22050)
     with pytest.raises(AudioError, match="too short"):
         cache.features_for_file(encoder, tiny)
+
+
+def test_cached_features_are_memory_mapped(tmp_path):
+    song = write_audio(tmp_path / "a.wav", click_track(2.0, 120.0, 3000), 3000)
+    computed = FeatureCache(tmp_path / "cache").features_for_file(CountingEncoder(), song)
+    encoder = CountingEncoder()
+    mapped = FeatureCache(tmp_path / "cache").features_for_file(encoder, song)  # a hit, in a fresh cache object
+    assert encoder.calls == 0 and isinstance(mapped, np.memmap) and not mapped.flags.writeable
+    np.testing.assert_array_equal(mapped, computed)
+
+
+def test_mmap_npz_reads_what_numpy_reads(tmp_path):
+    rng = np.random.default_rng(0)
+    arrays = {
+        "features": rng.standard_normal((50, 7)).astype(np.float32),
+        "fortran": np.asfortranarray(rng.standard_normal((4, 3))),
+        "ints": np.arange(11, dtype=np.int64),
+        "empty": np.zeros((0, 5), dtype=np.float32),
+        "scalar": np.array(3.5),
+    }
+    dio.atomic_save_npz(tmp_path / "e.npz", arrays)
+    mapped = dio.mmap_npz(tmp_path / "e.npz")
+    with np.load(tmp_path / "e.npz") as z:
+        assert set(mapped) == set(z.files)
+        for name in z.files:
+            assert mapped[name].dtype == z[name].dtype and mapped[name].shape == z[name].shape, name
+            np.testing.assert_array_equal(mapped[name], z[name])
+    np.savez_compressed(tmp_path / "c.npz", **arrays)
+    with pytest.raises(ValueError, match="compressed"):
+        dio.mmap_npz(tmp_path / "c.npz")
+    cache = dio.DiskCache(tmp_path, "ns")  # a compressed entry still loads, in memory
+    cache.dir.mkdir()
+    np.savez_compressed(cache.path("k"), **arrays)
+    np.testing.assert_array_equal(cache.load("k", mmap=True)["features"], arrays["features"])

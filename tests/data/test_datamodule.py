@@ -5,7 +5,13 @@ import pytest
 import torch
 
 from dgsdp.audio import LibrosaEncoder
-from dgsdp.data.datamodule import DanceDataModule, EpochShuffleSampler, load_sequences, window_starts
+from dgsdp.data.datamodule import (
+    DanceDataModule,
+    EpochShuffleSampler,
+    ResumableLoader,
+    load_sequences,
+    window_starts,
+)
 from dgsdp.data.synthetic import generate_synthetic_aistpp
 from dgsdp.errors import AudioError, DataError
 from dgsdp.utils.io import DiskCache
@@ -130,3 +136,51 @@ def test_shuffle_depends_only_on_seed_and_epoch():
     assert list(a) == list(b) and sorted(a) == list(range(20))
     b.set_epoch(3)
     assert list(a) != list(b)
+
+
+@pytest.mark.parametrize(("length", "world"), [(20, 2), (23, 3), (7, 4)])
+def test_shards_are_disjoint_and_cover_the_permutation(length, world):
+    samplers = [EpochShuffleSampler(length, seed=1, rank=r, world_size=world) for r in range(world)]
+    for s in samplers:
+        s.set_epoch(5)
+    shards = [list(s) for s in samplers]
+    per_rank = length // world
+    assert all(len(shard) == len(s) == per_rank for shard, s in zip(shards, samplers, strict=True))
+    union = [i for shard in shards for i in shard]
+    assert len(set(union)) == len(union) == world * per_rank  # disjoint
+    # the union is the first world * per_rank items of the one permutation every rank draws
+    g = torch.Generator().manual_seed(1 * 100_003 + 5)
+    assert set(union) == set(torch.randperm(length, generator=g)[: world * per_rank].tolist())
+
+
+def test_loader_skips_served_batches_on_every_rank():
+    data = list(range(40))
+    loaders = [ResumableLoader(data, batch_size=3, seed=0, rank=r, world_size=2) for r in range(2)]
+    full = [[b.tolist() for b in loader] for loader in loaders]
+    assert [len(f) for f in full] == [6, 6]  # 20 items per rank: 6 full batches, the partial one dropped
+    for loader, batches in zip(loaders, full, strict=True):
+        it = iter(loader)
+        next(it), next(it)
+        state = loader.state_dict()
+        assert state == {"served": 2}
+        resumed = ResumableLoader(data, batch_size=3, seed=0, rank=loader.sampler.rank, world_size=2)
+        resumed.load_state_dict(state)
+        assert [b.tolist() for b in resumed] == batches[2:]
+        assert [b.tolist() for b in resumed] == batches  # the next epoch pass starts from the beginning again
+
+
+def test_sampler_reads_rank_and_world_from_torch_distributed(monkeypatch):
+    monkeypatch.setattr(torch.distributed, "is_initialized", lambda: True)
+    monkeypatch.setattr(torch.distributed, "get_rank", lambda: 1)
+    monkeypatch.setattr(torch.distributed, "get_world_size", lambda: 4)
+    s = EpochShuffleSampler(10, seed=0)
+    assert (s.rank, s.world_size, len(s)) == (1, 4, 2)
+    with pytest.raises(DataError, match="cannot be shared by 4 processes"):
+        EpochShuffleSampler(3, seed=0)
+
+
+def test_loader_refuses_lightnings_distributed_sampler():
+    from dgsdp.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="use_distributed_sampler=false"):
+        ResumableLoader(list(range(10)), batch_size=2, seed=0, sampler=list(range(10)))
