@@ -21,6 +21,7 @@ if not OmegaConf.has_resolver("dgsdp_precision"):  # conf/trainer/ddp.yaml: bf16
 
     OmegaConf.register_new_resolver("dgsdp_precision", precision_for)
 
+
 @contextlib.contextmanager
 def _hydra_runtime(cfg: DictConfig) -> Iterator[None]:
     """Make ``${hydra:...}`` resolvable against ``cfg.hydra`` for the duration of the block, then put back

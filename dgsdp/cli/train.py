@@ -22,10 +22,10 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from dgsdp.cli.config import CONFIG_PATH, as_list, check_options
 from dgsdp.errors import CheckpointError, ConfigError, DgsdpError
 from dgsdp.registry import build
-from dgsdp.training.module import DanceDiffusion, read_checkpoint, wandb_run_id
-from dgsdp.training.spec import RunSpec
 from dgsdp.training.distributed import is_writer, log_files_on_writer_only
+from dgsdp.training.module import DanceDiffusion, read_checkpoint, wandb_run_id
 from dgsdp.training.resume import check_resume_has_work
+from dgsdp.training.spec import RunSpec
 from dgsdp.utils.io import atomic_write_text
 
 log = logging.getLogger(__name__)

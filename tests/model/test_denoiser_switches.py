@@ -6,12 +6,13 @@ import math
 import pytest
 import torch
 import torch.nn.functional as F
-from hydra.utils import instantiate
 
-from dgsdp.cli.config import audio_encoder_from_config, build_hparams, compose_config
+from dgsdp.cli.config import compose_config
+from dgsdp.cli.train import audio_encoder_from_config, style_embedder_from_config
 from dgsdp.model import DanceDenoiser
 from dgsdp.model.layers import Attention
 from dgsdp.training import DanceDiffusion
+from dgsdp.training.spec import RunSpec
 
 EDGE = {"rotary_placement": "input", "cross_attention_rotary": True, "null_music": "output"}
 
@@ -40,9 +41,12 @@ def edge_parameter_count(d=512, ff=1024, layers=8, audio=4800, pose=151, frames=
 def test_edge_experiment_has_edges_parameter_count(tmp_path):
     assert edge_parameter_count() == 49_464_471  # "49.46M" in the README's table
     cfg = compose_config("train", ["experiment=edge"], output_dir=tmp_path)
-    hparams = build_hparams(cfg, audio_encoder_from_config(cfg), instantiate(cfg.style), 0)
-    assert {k: hparams["model"][k] for k in EDGE} == EDGE
-    model = DanceDiffusion(hparams)
+    spec = RunSpec.from_config(
+        cfg, audio_encoder=audio_encoder_from_config(cfg), style_embedder=style_embedder_from_config(cfg),
+        style_bank_size=0, groups={},
+    )  # fmt: skip
+    assert {k: spec.model[k] for k in EDGE} == EDGE
+    model = DanceDiffusion(spec)
     assert sum(p.numel() for p in model.denoiser.parameters()) == edge_parameter_count()
     # the default denoiser has no null pooled vector: exactly d = 512 parameters fewer
     default = DanceDenoiser(audio_dim=4800)

@@ -58,7 +58,7 @@ class Probe(L.Callback):
         # this rank's own gradient, recomputed without DDP with the step's randomness (same seed, same draws)
         rng = torch.get_rng_state()
         self._recording = False
-        seed = int(pl_module.hparams["config"]["seed"])
+        seed = pl_module.spec.seed
         torch.manual_seed(step_seed(seed, 0, trainer.global_rank, trainer.world_size))
         loss = pl_module._loss(pl_module.denoiser, self._batch, train=True)["loss"]
         params = [pl_module.denoiser.get_parameter(n) for n in names]
