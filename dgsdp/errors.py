@@ -19,3 +19,8 @@ class WeightsError(DgsdpError):
 
 class ConfigError(DgsdpError):
     """A configuration value is invalid or inconsistent with a checkpoint."""
+
+
+class CheckpointError(ConfigError):
+    """A checkpoint cannot be used: unreadable, not one of ours, or its stored config asks for something other
+    than the project's own classes (a checkpoint's config is data, never code)."""

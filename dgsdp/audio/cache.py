@@ -69,7 +69,7 @@ class FeatureCache:
             waveform, rate_hz = load_audio(audio_path, sample_rate=encoder.sample_rate, mono=True)
             return {FEATURES_KEY: encoder.encode(waveform, rate_hz, music_id=music_id)}
 
-        features = cache.get_or_compute(key, compute)[FEATURES_KEY]
+        features = cache.get_or_compute(key, compute, required=(FEATURES_KEY,))[FEATURES_KEY]
         if n_frames is not None:
             features = fit_frames(features, int(n_frames))
         return features.astype(np.float32, copy=False)

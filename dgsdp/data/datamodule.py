@@ -79,7 +79,7 @@ def load_sequences(
             poses, trans_m = load_motion_pkl(pkl)
             return {"motion": process_motion(poses, trans_m, fps=fps)}
 
-        motion = motion_cache.get_or_compute(file_hash(pkl), compute)["motion"]
+        motion = motion_cache.get_or_compute(file_hash(pkl), compute, required=("motion",))["motion"]
         audio: np.ndarray | None = None
         if audio_encoder is not None:
             audio = feature_cache.features_for_file(

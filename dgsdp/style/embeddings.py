@@ -238,7 +238,7 @@ class StyleEmbedder:
         settings = encoder.settings()
         cache = DiskCache(self.cache_dir, f"style-text-{encoder.name}-{stable_hash(settings, 8)}")
         key = stable_hash({"settings": settings, "texts": texts})
-        vectors = cache.get_or_compute(key, compute)["vectors"]
+        vectors = cache.get_or_compute(key, compute, required=("vectors",))["vectors"]
         if vectors.shape != (len(texts), encoder.dim):
             raise DataError(f"Cached style embeddings in {cache.dir} have the wrong shape; delete that folder.")
         return torch.from_numpy(vectors).float()
