@@ -18,7 +18,7 @@ import yaml
 
 from dgsdp.errors import ConfigError, DataError
 from dgsdp.style.text_encoders import TextEncoder, plain_config
-from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
+from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab, split_free_text
 from dgsdp.utils.io import DiskCache, stable_hash
 
 StyleKind = Literal["none", "onehot", "genre", "prompt"]
@@ -252,8 +252,11 @@ class StyleEmbedder:
         """Style vector ``(dim,)`` of a free-text description (inference); loads the text encoder if needed."""
         if self.kind == "none":
             raise ConfigError("This model was trained without style conditioning (style=none); drop the style text.")
+        text, on_purpose = split_free_text(text)
+        if not on_purpose:
+            self.vocab.check_not_near_miss(text)  # "locking" is a typo of "lock", not a description
         if self.kind == "onehot":
-            if text in self.vocab:
+            if text in self.vocab and not on_purpose:
                 return self.embed_genre(text)
             raise ConfigError(
                 f"This model was trained with one-hot styles and only accepts genre names, not free text {text!r}. "

@@ -52,19 +52,24 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def is_stale_temp(path: Path, now: float | None = None) -> bool:
-    """Whether a temporary file written by :func:`atomic_path` belongs to no live process: its process on this
-    machine has exited, or (for another machine's file) it has not been touched for a day."""
-    m = _TAG.search(path.name)
-    if m is None:
+def owner_gone(tag: str, path: Path, now: float | None = None) -> bool:
+    """Whether the process named by a :func:`temp_tag` (``<host>-<pid>``) that wrote ``path`` no longer runs: on this
+    machine it has exited; for another machine's file, ``path`` has not been touched for a day."""
+    host, _, pid = tag.rpartition("-")
+    if not pid.isdigit():
         return False
+    if host == _host_tag():
+        return int(pid) != os.getpid() and not _pid_alive(int(pid))
     try:
-        age = (now or time.time()) - path.stat().st_mtime
+        return (now or time.time()) - path.stat().st_mtime > STALE_TEMP_SECONDS
     except OSError:
         return False
-    if m["host"] == _host_tag():
-        return int(m["pid"]) != os.getpid() and not _pid_alive(int(m["pid"]))
-    return age > STALE_TEMP_SECONDS
+
+
+def is_stale_temp(path: Path, now: float | None = None) -> bool:
+    """Whether a temporary file written by :func:`atomic_path` was left by a process that no longer runs."""
+    m = _TAG.search(path.name)
+    return m is not None and owner_gone(f"{m['host']}-{m['pid']}", path, now)
 
 
 def remove_stale_temps(folder: str | os.PathLike) -> int:
