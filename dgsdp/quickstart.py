@@ -20,6 +20,7 @@ from datetime import datetime
 from pathlib import Path
 
 from dgsdp.cli.config import PROJECT_ROOT, compose_config
+from dgsdp.cli.runtime import run_suffix
 from dgsdp.errors import DgsdpError
 
 FREE_TEXT_STYLE = "sharp, powerful krump with heavy chest pops and arm swings"
@@ -29,7 +30,7 @@ TRAIN_STEPS = 600
 def main(argv: list[str] | None = None) -> int:
     overrides = list(sys.argv[1:] if argv is None else argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    out = PROJECT_ROOT / "outputs" / "quickstart" / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    out = PROJECT_ROOT / "outputs" / "quickstart" / f"{datetime.now():%Y-%m-%d_%H-%M-%S}_{run_suffix()}"
     try:
         from dgsdp.cli.train import train
 

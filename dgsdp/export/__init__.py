@@ -6,9 +6,10 @@ Every exporter takes a motion in the project's z-up world (local rotations (T, 2
 
 from dgsdp.export.aistpp_pkl import motion_to_aistpp, save_aistpp_pkl
 from dgsdp.export.bvh import bvh_text, matrix_to_euler_zxy, save_bvh
+from dgsdp.export.formats import MOTION_FORMATS, check_formats
 from dgsdp.export.render import Camera, ffmpeg_available, fit_camera, render_frame, render_video
 
 __all__ = [
-    "Camera", "bvh_text", "ffmpeg_available", "fit_camera", "matrix_to_euler_zxy", "motion_to_aistpp",
+    "MOTION_FORMATS", "Camera", "bvh_text", "check_formats", "ffmpeg_available", "fit_camera", "matrix_to_euler_zxy", "motion_to_aistpp",
     "render_frame", "render_video", "save_aistpp_pkl", "save_bvh",
 ]  # fmt: skip
