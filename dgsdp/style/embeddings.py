@@ -17,7 +17,7 @@ import torch
 import yaml
 
 from dgsdp.errors import ConfigError, DataError
-from dgsdp.style.text_encoders import TextEncoder, plain_config
+from dgsdp.style.text_encoders import TextEncoder, build_text_encoder, plain_config
 from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab, split_free_text
 from dgsdp.utils.io import DiskCache, stable_hash
 
@@ -177,9 +177,7 @@ class StyleEmbedder:
         if self._encoder is None:
             if self._encoder_cfg is None:
                 raise ConfigError(f"style kind {self.kind!r} uses no text encoder.")
-            from hydra.utils import instantiate
-
-            encoder = instantiate(self._encoder_cfg)
+            encoder = build_text_encoder(self._encoder_cfg)  # no Hydra instantiate: the config may come from a file
             if not isinstance(encoder, TextEncoder):
                 raise ConfigError(f"text_encoder config built a {type(encoder).__name__}, not a TextEncoder.")
             self._encoder = encoder

@@ -29,10 +29,21 @@ CLIP_WEIGHTS_HELP = (
 )
 
 
+TEXT_ENCODER_CLASSES: dict[str, type] = {}
+"""Every defined TextEncoder subclass by ``module.Name`` (and its public ``dgsdp.style.Name``): the only targets a
+text-encoder config may name, so a config read from a checkpoint can build a text encoder and nothing else."""
+
+
 class TextEncoder(ABC):
     """Maps a list of texts to a float32 tensor ``(N, dim)``; deterministic for the same settings."""
 
     name: str = "text"
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        TEXT_ENCODER_CLASSES[f"{cls.__module__}.{cls.__qualname__}"] = cls
+        if cls.__module__ == __name__:
+            TEXT_ENCODER_CLASSES[f"dgsdp.style.{cls.__qualname__}"] = cls
 
     @property
     @abstractmethod
@@ -301,6 +312,35 @@ class ClipTextEncoder(TextEncoder):
         if self.normalize:
             features = torch.nn.functional.normalize(features, dim=-1)
         return features
+
+
+def build_text_encoder(cfg: Mapping[str, Any]) -> TextEncoder:
+    """A text encoder from its config, without Hydra: ``_target_`` must name a defined TextEncoder class and no value
+    may hold another ``_target_`` (configs stored in checkpoints are data, never code)."""
+    cfg = dict(plain_config(cfg))
+    target = str(cfg.pop("_target_", ""))
+    cls = TEXT_ENCODER_CLASSES.get(target)
+    if cls is None:
+        known = sorted(k for k in TEXT_ENCODER_CLASSES if k.startswith("dgsdp.style.") and "." not in k[12:])
+        raise ConfigError(
+            f"text_encoder._target_={target!r} is not a text encoder; refused (it could run code). "
+            f"Use one of: {', '.join(known)}"
+        )
+    for key in ("_recursive_", "_convert_"):
+        cfg.pop(key, None)
+
+    def nested_target(value: Any) -> bool:
+        if isinstance(value, Mapping):
+            return "_target_" in value or any(nested_target(v) for v in value.values())
+        return isinstance(value, list) and any(nested_target(v) for v in value)
+
+    bad = [k for k, v in cfg.items() if k.startswith("_") or nested_target(v)]
+    if bad:
+        raise ConfigError(f"text_encoder config keys {bad} are refused: only plain settings of {target} are allowed")
+    try:
+        return cls(**cfg)
+    except TypeError as e:
+        raise ConfigError(f"text_encoder config does not fit {target}: {e}") from e
 
 
 def plain_config(cfg: Any) -> Any:

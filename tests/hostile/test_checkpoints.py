@@ -202,3 +202,30 @@ def test_no_unsafe_torch_load_left_in_the_package():
                 offenders.append(f"{py.relative_to(root)}:{i}")
     assert not offenders, offenders
     assert np is not None
+
+
+# --- text encoder configs (stored in checkpoints as conditioning.text_encoder) -----------------------------------------
+@pytest.mark.parametrize("target", ["builtins.open", "numpy.savetxt", "os.system", "nested", "antigravity.fly"])
+def test_text_encoder_config_builds_only_text_encoders(tmp_path, marker, target):
+    from dgsdp.style import StyleEmbedder
+
+    configs = {
+        "builtins.open": {"_target_": "builtins.open", "file": str(marker), "mode": "w"},
+        "numpy.savetxt": {"_target_": "numpy.savetxt", "fname": str(marker), "X": [1.0]},
+        "os.system": {"_target_": "os.system", "command": shell_touch(marker)},
+        "nested": {"_target_": "dgsdp.style.MiniLMTextEncoder",
+                   "device": {"_target_": "builtins.open", "file": str(marker), "mode": "w"}},
+        "antigravity.fly": {"_target_": "antigravity.fly"},  # importing a module by name is refused too
+    }  # fmt: skip
+    embedder = StyleEmbedder("prompt", text_encoder=configs[target], cache_dir=tmp_path)
+    with pytest.raises(DgsdpError) as exc:
+        embedder.text_encoder  # noqa: B018
+    refused(exc, "refused")
+    assert "antigravity" not in sys.modules
+
+
+def test_text_encoder_config_of_the_project_still_builds(tmp_path):
+    from dgsdp.style import MiniLMTextEncoder, StyleEmbedder
+
+    embedder = StyleEmbedder("prompt", text_encoder={"_target_": "dgsdp.style.MiniLMTextEncoder", "_recursive_": False})
+    assert isinstance(embedder.text_encoder, MiniLMTextEncoder) and not embedder.text_encoder.loaded
