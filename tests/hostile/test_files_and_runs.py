@@ -224,3 +224,12 @@ def test_bad_ffmpeg_timeout_setting(monkeypatch):
     with pytest.raises(DgsdpError) as exc:
         ffmpeg_timeout_seconds()
     refused(exc, "DGSDP_FFMPEG_TIMEOUT", "soon")
+
+
+@pytest.mark.parametrize("trainer", ["default", "cpu", "gpu", "ddp"])
+def test_every_trainer_saves_checkpoints_atomically(trainer):
+    """Checkpoints saved by any trainer config (also Lightning's own, with callbacks=none) use AtomicCheckpointIO."""
+    from dgsdp.cli.config import compose_config
+
+    cfg = compose_config("train", [f"trainer={trainer}"], output_dir="/unused")
+    assert [p["_target_"] for p in cfg.trainer.plugins] == ["dgsdp.training.checkpoint.AtomicCheckpointIO"]
