@@ -233,3 +233,21 @@ def test_every_trainer_saves_checkpoints_atomically(trainer):
 
     cfg = compose_config("train", [f"trainer={trainer}"], output_dir="/unused")
     assert [p["_target_"] for p in cfg.trainer.plugins] == ["dgsdp.training.checkpoint.AtomicCheckpointIO"]
+
+
+def test_render_folders_of_killed_runs_are_removed(tmp_path, monkeypatch):
+    """The video step stages the song as float wav in the temp folder; a killed run's copy goes on the next render."""
+    from dgsdp.export.render import RENDER_TEMP_PREFIX, _remove_stale_render_dirs
+    from dgsdp.utils.io import temp_tag
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    host = temp_tag().rsplit("-", 1)[0]
+    killed = tmp_path / f"{RENDER_TEMP_PREFIX}{host}-{dead.pid}-abc123"
+    live = tmp_path / f"{RENDER_TEMP_PREFIX}{temp_tag()}-def456"
+    for folder in (killed, live):
+        folder.mkdir()
+        (folder / "audio.wav").write_bytes(b"\0" * 1000)
+    _remove_stale_render_dirs()
+    assert not killed.exists() and live.exists()
