@@ -77,6 +77,7 @@ def load_sequences(
     feature_cache = FeatureCache(cache_dir) if audio_encoder is not None else None
     sequences: list[Sequence] = []
     failed: list[tuple[str, str]] = []
+    kinds: set[type[DgsdpError]] = set()
     for name in tqdm(names, desc=f"loading {split} ({root.name})", disable=not progress, leave=False):
         parsed = parse_name(name)
         pkl = root / "motions" / f"{name}.pkl"
@@ -95,7 +96,8 @@ def load_sequences(
             elif waveform_sample_rate is not None:
                 audio, _ = load_audio(music_path(root, parsed.music_id), waveform_sample_rate)
         except DgsdpError as e:  # DataError, AudioError: this file is bad, the others may be fine
-            failed.append((name, str(e)))
+            failed.append((name, str(e).rstrip(".")))
+            kinds.add(type(e))
             continue
         sequences.append(Sequence(name, parsed.genre, vocab.index(parsed.genre), parsed.music_id, motion, audio))
     if failed:
@@ -105,7 +107,8 @@ def load_sequences(
             errors.extend(failed)
         else:
             listing = "; ".join(f"{name}: {message}" for name, message in failed)
-            raise DataError(
+            error = kinds.pop() if len(kinds) == 1 else DataError  # e.g. AudioError when only songs are bad
+            raise error(
                 f"{len(failed)} of {len(names)} sequences of split {split!r} in {root} cannot be read: {listing}. "
                 "Fix or remove these files (or add their names to the ignore list)"
             )
