@@ -102,7 +102,7 @@ def test_wrong_shapes(tmp_path):
 
 
 def test_wrong_dtypes(tmp_path):
-    """Weights stored as strings of a wrong kind (complex tensors) cannot become a model."""
+    """Weights of the wrong dtype (complex tensors, whose imaginary part a float model would drop) are refused."""
     state = {k: (v.to(torch.complex64) if v.is_floating_point() else v) for k, v in _model().state_dict().items()}
     path = save_ckpt(tmp_path / "dtypes.ckpt", state=state)
     with pytest.raises(DgsdpError) as exc:
