@@ -22,5 +22,5 @@ class ConfigError(DgsdpError):
 
 
 class CheckpointError(ConfigError):
-    """A checkpoint cannot be used: unreadable, not ours, from another configuration, or asking to build
-    something that is not one of the project's own classes."""
+    """A checkpoint cannot be used: unreadable, not one of ours, or its stored config asks for something other
+    than the project's own classes (a checkpoint's config is data, never code)."""

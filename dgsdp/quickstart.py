@@ -20,6 +20,7 @@ from datetime import datetime
 from pathlib import Path
 
 from dgsdp.cli.config import compose_config
+from dgsdp.cli.runtime import run_suffix
 from dgsdp.errors import DgsdpError
 from dgsdp.resources import default_log_dir
 from dgsdp.utils.logs import lightning_logs_through_root
@@ -32,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     overrides = list(sys.argv[1:] if argv is None else argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     lightning_logs_through_root()
-    out = default_log_dir() / "quickstart" / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    out = default_log_dir() / "quickstart" / f"{datetime.now():%Y-%m-%d_%H-%M-%S}_{run_suffix()}"
     try:
         from dgsdp.cli.train import train
 

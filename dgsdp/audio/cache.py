@@ -17,6 +17,7 @@ from tqdm import tqdm
 
 from dgsdp.audio.base import AudioEncoder, fit_frames
 from dgsdp.audio.io import audio_duration_seconds, load_audio
+from dgsdp.errors import AudioError
 from dgsdp.utils.io import DiskCache, file_hash, stable_hash
 
 FEATURES_KEY = "features"
@@ -44,6 +45,8 @@ class FeatureCache:
     @staticmethod
     def key(encoder: AudioEncoder, audio_path: str | os.PathLike, music_id: str | None = None) -> str:
         """Content hash of the file, plus the part of ``music_id`` that changes this encoder's output."""
+        if not Path(audio_path).is_file():
+            raise AudioError(f"Audio file not found: {audio_path}. Check the path (and the data folder setting).")
         key = file_hash(audio_path)
         extra = encoder.music_id_key(music_id) if encoder.uses_music_id else ""
         return f"{key}-{extra}" if extra else key
@@ -68,12 +71,15 @@ class FeatureCache:
 
         def compute() -> dict[str, np.ndarray]:
             waveform, rate_hz = load_audio(audio_path, sample_rate=encoder.sample_rate, mono=True)
-            return {FEATURES_KEY: encoder.encode(waveform, rate_hz, music_id=music_id)}
+            try:
+                return {FEATURES_KEY: encoder.encode(waveform, rate_hz, music_id=music_id)}
+            except AudioError as e:  # the encoder does not know the file: name it
+                raise AudioError(f"{audio_path}: {e}") from e
 
         mapped = self._mapped.get((cache.dir.name, key))
         if mapped is None:
             # a hit is memory-mapped: pages load on first touch and are shared by loader workers and ranks
-            mapped = cache.get_or_compute(key, compute, mmap=True)[FEATURES_KEY]
+            mapped = cache.get_or_compute(key, compute, required=(FEATURES_KEY,), mmap=True)[FEATURES_KEY]
             self._mapped[(cache.dir.name, key)] = mapped
         features = mapped
         if n_frames is not None:

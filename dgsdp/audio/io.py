@@ -17,6 +17,8 @@ import soundfile as sf
 from dgsdp.errors import AudioError
 
 RESAMPLE_TYPE = "soxr_hq"
+MAX_PEAK = 1000.0
+"""Float files may exceed full scale (1.0) a little; samples past this (60 dB over) mean a broken file."""
 
 
 def _read_native(path: Path) -> tuple[np.ndarray, int]:
@@ -59,6 +61,12 @@ def load_audio(path: str | os.PathLike, sample_rate: int | None, mono: bool = Tr
         raise AudioError(f"Audio file {path} contains no samples. Re-export it with audio content.")
     if not np.all(np.isfinite(data)):
         raise AudioError(f"Audio file {path} contains NaN or infinite samples. Re-export it.")
+    peak = float(np.abs(data).max())
+    if peak > MAX_PEAK:
+        raise AudioError(
+            f"Audio file {path} has samples up to {peak:.3g}, where full scale is 1.0: it is corrupt or wrongly "
+            "scaled. Re-export it normalised (e.g. as 16-bit PCM wav)."
+        )
     if mono:
         data = data.mean(axis=0)
     if sample_rate is not None and int(sample_rate) != rate_hz:

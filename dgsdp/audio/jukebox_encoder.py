@@ -31,6 +31,7 @@ import contextlib
 import io
 import os
 import pickle
+import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
@@ -113,14 +114,26 @@ def truncate_prior(prior: nn.Module, layer: int) -> None:
 
 
 def _load_checkpoint_state(path: Path) -> dict[str, torch.Tensor]:
-    """The ``model`` state dict of an official Jukebox checkpoint file."""
+    """The ``model`` state dict of an official Jukebox checkpoint file, read as tensors and plain values only.
+
+    OpenAI's files hold ``{"hps": dict, "model": state dict, "opt": ..., "step": int}`` in torch's pre-zip format,
+    which ``weights_only=True`` reads (jukebox-infer itself loads them that way); memory mapping needs the zip format
+    and is used when the file has it. Nothing else is tried: a file that needs arbitrary objects is refused.
+    """
     try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
-    except (pickle.UnpicklingError, RuntimeError, ValueError):
-        # The official 2020 files pickle a Hyperparams object next to the weights (and predate the zip
-        # format that mmap needs). They come from OpenAI's release the user downloaded on purpose.
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
-    if not isinstance(checkpoint, Mapping) or "model" not in checkpoint:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True, mmap=zipfile.is_zipfile(path))
+    except pickle.UnpicklingError as e:
+        raise WeightsError(
+            f"{path} was refused: it holds objects other than tensors and plain values, and loading it would run "
+            f"code from the file ({str(e).splitlines()[0][:300]}). The official Jukebox files load as tensors only; "
+            f"re-download {path.name} from {WEIGHTS_URL}."
+        ) from e
+    except (RuntimeError, ValueError, EOFError, OSError) as e:
+        raise WeightsError(
+            f"cannot read Jukebox checkpoint {path} ({type(e).__name__}: {str(e)[:300]}); it is truncated or "
+            f"corrupt. Re-download {path.name} from {WEIGHTS_URL}."
+        ) from e
+    if not isinstance(checkpoint, Mapping) or not isinstance(checkpoint.get("model"), Mapping):
         raise WeightsError(f"{path} is not a Jukebox checkpoint (no 'model' entry). Re-download it.")
     return dict(checkpoint["model"])
 

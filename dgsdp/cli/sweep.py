@@ -21,6 +21,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
+from dgsdp.cli.runtime import check_command_line, run_suffix
 from dgsdp.errors import ConfigError
 from dgsdp.resources import CONFIG_DIR, CONFIG_PATH, SWEEPS_DIR, default_log_dir
 
@@ -128,14 +129,17 @@ def _default_sweep_dir(name: str, overrides: list[str]) -> Path:
     for line in overrides:
         if line.startswith("paths.log_dir="):
             log_dir = Path(line.split("=", 1)[1]).expanduser()
-    return log_dir / "sweeps" / name / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    return log_dir / "sweeps" / name / f"{datetime.now():%Y-%m-%d_%H-%M-%S}_{run_suffix()}"
 
 
 def launch(sweep: str, overrides: list[str] | None = None, *, jobs: int = 1, dry_run: bool = False) -> dict[str, Any]:
     """Launch a sweep; returns {"sweep_dir", "expected_jobs", "jobs", "grid"}. ConfigError if it cannot run."""
     from hydra import main as hydra_main
 
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise ConfigError(f"--jobs must be a whole number of parallel jobs, at least 1; got {jobs!r}")
     overrides = list(overrides or [])
+    check_command_line(overrides)
     sweep_file = resolve_sweep(sweep)
     grid = sweep_grid(sweep_file, overrides)
     expected = math.prod(len(v) for v in grid.values())

@@ -9,7 +9,6 @@ package (``dgsdp/resources/aistpp_splits/``).
 
 from __future__ import annotations
 
-import pickle
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +20,7 @@ from dgsdp.audio.tempo import tempo_from_music_id
 from dgsdp.errors import DataError
 from dgsdp.motion import smpl_to_pose
 from dgsdp.resources import AISTPP_SPLITS_DIR as SHIPPED_SPLITS_DIR
+from dgsdp.utils.safe_pickle import load_pickle
 
 SOURCE_FPS = 60
 NAME_PATTERN = re.compile(
@@ -118,15 +118,7 @@ def music_path(root: str | Path, music_id: str) -> Path:
 def load_motion_pkl(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Read an AIST++ motion pickle. Returns (poses (N, 72) axis-angle, trans (N, 3) metres), 60 FPS, y-up."""
     path = Path(path)
-    if not path.is_file():
-        raise DataError(f"motion file {path} does not exist")
-    try:
-        with open(path, "rb") as f:
-            data = pickle.load(f)
-    except Exception as e:  # noqa: BLE001 - any unpickling failure is a bad file for the user
-        raise DataError(
-            f"cannot read motion file {path} ({type(e).__name__}: {e}); re-download or regenerate it"
-        ) from e
+    data = load_pickle(path, "motion file")  # plain data and numpy arrays only: never runs code from the file
     if not isinstance(data, dict):
         raise DataError(f"motion file {path} holds a {type(data).__name__}, expected a dict with 'smpl_poses'")
     missing = [k for k in ("smpl_poses", "smpl_trans") if k not in data]
@@ -135,9 +127,14 @@ def load_motion_pkl(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
             f"motion file {path} has no {', '.join(missing)} (keys: {sorted(data)}); "
             "AIST++ motion files hold smpl_poses (N, 72), smpl_trans (N, 3) and smpl_scaling (1,)"
         )
-    poses = np.asarray(data["smpl_poses"], dtype=np.float32)
-    trans = np.asarray(data["smpl_trans"], dtype=np.float32)
-    scaling = float(np.asarray(data.get("smpl_scaling", [1.0]), dtype=np.float64).reshape(-1)[0])
+    try:
+        poses = np.asarray(data["smpl_poses"], dtype=np.float32)
+        trans = np.asarray(data["smpl_trans"], dtype=np.float32)
+        scaling = float(np.asarray(data.get("smpl_scaling", [1.0]), dtype=np.float64).reshape(-1)[0])
+    except (TypeError, ValueError, IndexError) as e:
+        raise DataError(
+            f"motion file {path}: smpl_poses, smpl_trans and smpl_scaling must be numeric arrays ({e})"
+        ) from e
     if poses.ndim != 2 or poses.shape[1] != 72 or trans.shape != (poses.shape[0], 3) or len(poses) == 0:
         raise DataError(
             f"motion file {path}: smpl_poses {poses.shape} and smpl_trans {trans.shape} should be (N, 72) and (N, 3)"

@@ -22,7 +22,7 @@ from tqdm.auto import tqdm
 
 from dgsdp.audio import AudioEncoder, FeatureCache, load_audio
 from dgsdp.data.aistpp import check_root, load_motion_pkl, music_path, parse_name, process_motion, read_split
-from dgsdp.errors import ConfigError, DataError
+from dgsdp.errors import ConfigError, DataError, DgsdpError
 from dgsdp.motion import POSE_DIM, MinMaxNormalizer
 from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
 from dgsdp.utils.io import DiskCache, file_hash
@@ -64,13 +64,20 @@ def load_sequences(
     vocab: GenreVocab = AISTPP_GENRES,
     max_sequences: int | None = None,
     progress: bool = True,
+    errors: list[tuple[str, str]] | None = None,
 ) -> list[Sequence]:
-    """Read, process (cached) and pair each sequence of a split with its music."""
+    """Read, process (cached) and pair each sequence of a split with its music.
+
+    A sequence whose motion or music file cannot be read does not stop the others: with ``errors`` given, each
+    such file's ``(name, message)`` is appended to it and the sequence is left out; without it, one DataError
+    listing every bad file is raised after all files were tried."""
     root = check_root(root)
     names = read_split(root, split)[:max_sequences]
     motion_cache = DiskCache(cache_dir, f"motion-v{MOTION_CACHE_VERSION}-{fps}fps")
     feature_cache = FeatureCache(cache_dir) if audio_encoder is not None else None
     sequences: list[Sequence] = []
+    failed: list[tuple[str, str]] = []
+    kinds: set[type[DgsdpError]] = set()
     for name in tqdm(names, desc=f"loading {split} ({root.name})", disable=not progress, leave=False):
         parsed = parse_name(name)
         pkl = root / "motions" / f"{name}.pkl"
@@ -79,16 +86,42 @@ def load_sequences(
             poses, trans_m = load_motion_pkl(pkl)
             return {"motion": process_motion(poses, trans_m, fps=fps)}
 
-        motion = motion_cache.get_or_compute(file_hash(pkl), compute)["motion"]
-        audio: np.ndarray | None = None
-        if audio_encoder is not None:
-            audio = feature_cache.features_for_file(
-                audio_encoder, music_path(root, parsed.music_id), music_id=parsed.music_id
-            )
-        elif waveform_sample_rate is not None:
-            audio, _ = load_audio(music_path(root, parsed.music_id), waveform_sample_rate)
+        try:
+            motion = motion_cache.get_or_compute(file_hash(pkl), compute, required=("motion",))["motion"]
+            audio: np.ndarray | None = None
+            if audio_encoder is not None:
+                audio = feature_cache.features_for_file(
+                    audio_encoder, music_path(root, parsed.music_id), music_id=parsed.music_id
+                )
+            elif waveform_sample_rate is not None:
+                audio, _ = load_audio(music_path(root, parsed.music_id), waveform_sample_rate)
+        except DgsdpError as e:  # DataError, AudioError: this file is bad, the others may be fine
+            failed.append((name, str(e).rstrip(".")))
+            kinds.add(type(e))
+            continue
         sequences.append(Sequence(name, parsed.genre, vocab.index(parsed.genre), parsed.music_id, motion, audio))
+    if failed:
+        for name, message in failed:
+            log.error("split %r: %s left out: %s", split, name, message)
+        if errors is not None:
+            errors.extend(failed)
+        else:
+            listing = "; ".join(f"{name}: {message}" for name, message in failed)
+            error = kinds.pop() if len(kinds) == 1 else DataError  # e.g. AudioError when only songs are bad
+            raise error(
+                f"{len(failed)} of {len(names)} sequences of split {split!r} in {root} cannot be read: {listing}. "
+                "Fix or remove these files (or add their names to the ignore list)"
+            )
     return sequences
+
+
+def count_short(sequences: list[Sequence], length: int) -> int:
+    """How many sequences are shorter than one window of ``length`` frames (they give no window)."""
+    return sum(len(seq.motion) < length for seq in sequences)
+
+
+def _same_path(a: Path, b: Path) -> bool:
+    return a.expanduser().resolve() == b.expanduser().resolve()
 
 
 class WindowDataset(Dataset):
@@ -250,7 +283,9 @@ class DanceDataModule(L.LightningDataModule):
     ``num_workers`` loader processes (kept alive across epochs with ``persistent_workers``) and ``pin_memory``
     (page-locked batches, for asynchronous copies to a GPU) are the data-loading speed settings.
     ``audio_encoder`` None with ``waveform_sample_rate`` set yields raw waveform windows; both None yields motion
-    only. If ``root`` has no dataset and ``synthetic`` is set, the synthetic dataset is generated there first.
+    only. If ``root`` has no dataset and ``synthetic`` is set, the synthetic dataset is generated there first, but
+    only when asked: ``root`` is the synthetic dataset's own folder (``synthetic_root``) or ``generate_synthetic``
+    is true. A mistyped ``data.root`` is an error, not a new dataset.
     The normaliser is fitted on every frame of the training sequences.
     """
 
@@ -277,8 +312,12 @@ class DanceDataModule(L.LightningDataModule):
         vocab: GenreVocab = AISTPP_GENRES,
         progress: bool = True,
         shuffle_seed: int = 0,
+        synthetic_root: str | None = None,
+        generate_synthetic: bool = False,
     ) -> None:
         super().__init__()
+        self.synthetic_root = None if synthetic_root is None else Path(synthetic_root).expanduser()
+        self.generate_synthetic = bool(generate_synthetic)
         self.shuffle_seed = shuffle_seed
         self.root = Path(root).expanduser()
         self.cache_dir = Path(cache_dir).expanduser()
@@ -319,6 +358,13 @@ class DanceDataModule(L.LightningDataModule):
 
     def prepare_data(self) -> None:
         if self.synthetic is not None and not (self.root / "motions").is_dir():
+            at_default = self.synthetic_root is not None and _same_path(self.root, self.synthetic_root)
+            if not (at_default or self.generate_synthetic):
+                raise DataError(
+                    f"no dataset at data.root={self.root} (no 'motions/' folder there). Check the path; to generate "
+                    f"the synthetic dataset in that folder on purpose, add data.generate_synthetic=true "
+                    f"(or run 'python -m dgsdp.data.synthetic --out {self.root}')"
+                )
             from dgsdp.data.synthetic import generate_synthetic_aistpp
 
             log.info("generating the synthetic AIST++ dataset in %s", self.root)
@@ -363,6 +409,12 @@ class DanceDataModule(L.LightningDataModule):
                 fps=self.fps,
                 waveform_sample_rate=self.waveform_sample_rate if self.audio_encoder is None else None,
             )
+            short = count_short(ds.sequences, self.length)
+            if short:
+                log.warning(
+                    "split %r: %d of %d sequences are shorter than one window (%.1f s) and are left out",
+                    self.splits[name], short, len(ds.sequences), self.length / self.fps,
+                )  # fmt: skip
             if len(ds) == 0:
                 raise DataError(
                     f"split {self.splits[name]!r} of {self.root} has no sequence of at least "

@@ -8,7 +8,6 @@ writes them), or ``.pkl`` holding either such an array or an AIST++ motion dict 
 from __future__ import annotations
 
 import os
-import pickle
 from pathlib import Path
 
 import numpy as np
@@ -17,16 +16,21 @@ import torch
 from dgsdp.data.aistpp import load_motion_pkl, process_motion
 from dgsdp.errors import DataError
 from dgsdp.motion import POSE_DIM
+from dgsdp.utils.safe_pickle import load_pickle
 
 MOTION_FILE_SUFFIXES = (".npy", ".pkl")
 AISTPP_SOURCE_FPS = 60
 
 
 def _as_pose_array(data: object, path: Path) -> torch.Tensor:
-    arr = np.asarray(data)
+    try:
+        arr = np.asarray(data)
+    except ValueError:  # ragged nested lists
+        arr = np.asarray(data, dtype=object)
     if arr.ndim == 1 and arr.shape[0] == POSE_DIM:
         arr = arr[None]
-    if arr.ndim != 2 or arr.shape[1] != POSE_DIM or arr.shape[0] == 0 or not np.issubdtype(arr.dtype, np.number):
+    real = np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
+    if arr.ndim != 2 or arr.shape[1] != POSE_DIM or arr.shape[0] == 0 or not real:
         raise DataError(
             f"motion file {path} holds an array of shape {arr.shape} ({arr.dtype}); expected 151-d pose vectors "
             f"(N, {POSE_DIM}) (contacts, root translation, 24 x 6D rotations; z-up, 30 FPS) or an AIST++ "
@@ -54,15 +58,14 @@ def load_motion_file(path: str | os.PathLike, fps: int = 30) -> torch.Tensor:
         except Exception as e:  # noqa: BLE001 - any failure here means an unreadable file for the user
             raise DataError(f"cannot read motion file {path} ({type(e).__name__}: {e})") from e
         return _as_pose_array(data, path)
-    try:
-        with open(path, "rb") as f:
-            data = pickle.load(f)
-    except Exception as e:  # noqa: BLE001
-        raise DataError(f"cannot read motion file {path} ({type(e).__name__}: {e})") from e
+    data = load_pickle(path, "motion file")  # plain data and numpy arrays only: never runs code from the file
     if not isinstance(data, dict):
         return _as_pose_array(data, path)
-    source_fps = int(round(float(data.get("fps", AISTPP_SOURCE_FPS))))
+    try:
+        source_fps = int(round(float(data.get("fps", AISTPP_SOURCE_FPS))))
+    except (TypeError, ValueError, OverflowError) as e:
+        raise DataError(f"motion file {path}: 'fps' must be a number, got {data.get('fps')!r}") from e
     poses, trans_m = load_motion_pkl(path)
-    if source_fps % fps:
+    if source_fps <= 0 or source_fps % fps:
         raise DataError(f"motion file {path} is at {source_fps} FPS, which is not a multiple of {fps} FPS")
     return torch.from_numpy(process_motion(poses, trans_m, source_fps=source_fps, fps=fps))

@@ -14,7 +14,7 @@ from typing import Any
 _EXPORTS = {
     "motion_to_aistpp": "aistpp_pkl", "save_aistpp_pkl": "aistpp_pkl",
     "bvh_text": "bvh", "matrix_to_euler_zxy": "bvh", "save_bvh": "bvh",
-    "gltf_document": "gltf", "save_glb": "gltf",
+    "gltf_document": "gltf", "save_glb": "gltf", "MOTION_FORMATS": "formats", "check_formats": "formats",
     "Camera": "render", "ffmpeg_available": "render", "fit_camera": "render", "follow_cameras": "render",
     "render_frame": "render", "render_video": "render",
 }  # fmt: skip

@@ -15,12 +15,17 @@ is shown while the music at i / fps seconds plays. A song shorter than the motio
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import os
+import re
 import shutil
+import signal
 import subprocess
 import tempfile
+import threading
+import time
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -34,7 +39,7 @@ from PIL import Image, ImageDraw, ImageFont
 from dgsdp.audio.io import load_audio
 from dgsdp.errors import ConfigError, DataError, DgsdpError
 from dgsdp.motion import JOINT_NAMES, NUM_JOINTS, PARENTS
-from dgsdp.utils.io import atomic_path
+from dgsdp.utils.io import atomic_path, owner_gone, temp_tag
 
 BACKGROUND = (255, 255, 255)
 FLOOR_COLOUR = (200, 200, 200)
@@ -307,6 +312,63 @@ def _write_gif(tmp: Path, frames: Iterator[np.ndarray], fps: float) -> None:
     first.save(tmp, format="GIF", save_all=True, append_images=images, duration=1000.0 / fps, loop=0)
 
 
+FFMPEG_STALL_SECONDS = 120.0
+"""Default of ``DGSDP_FFMPEG_TIMEOUT``: ffmpeg is killed when it accepts no frame for this long, or takes this long plus the song's duration to finish
+after the last frame (a pathological input once made the AAC encode hang for 20 minutes)."""
+RENDER_TEMP_PREFIX = "dgsdp-render-"
+
+
+def ffmpeg_timeout_seconds() -> float:
+    """``DGSDP_FFMPEG_TIMEOUT`` (seconds), else :data:`FFMPEG_STALL_SECONDS`."""
+    raw = os.environ.get("DGSDP_FFMPEG_TIMEOUT")
+    try:
+        value = float(raw) if raw else FFMPEG_STALL_SECONDS
+    except ValueError:
+        raise ConfigError(f"DGSDP_FFMPEG_TIMEOUT must be a number of seconds, got {raw!r}") from None
+    if not value > 0:
+        raise ConfigError(f"DGSDP_FFMPEG_TIMEOUT must be positive, got {raw!r}")
+    return value
+
+
+class _Watchdog:
+    """Kills a process (and its process group) when ``deadline`` passes; push the deadline to keep it alive."""
+
+    def __init__(self, proc: subprocess.Popen, stall_seconds: float) -> None:
+        self.proc = proc
+        self.deadline = time.monotonic() + stall_seconds
+        self.fired = False
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.2):
+            if time.monotonic() > self.deadline and self.proc.poll() is None:
+                self.fired = True
+                _kill(self.proc)
+                return
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def _kill(proc: subprocess.Popen) -> None:
+    with contextlib.suppress(OSError):
+        if os.name == "posix":
+            os.killpg(proc.pid, signal.SIGKILL)
+        else:
+            proc.kill()
+
+
+def _remove_stale_render_dirs() -> None:
+    """Remove render folders of killed processes of this machine from the temp folder."""
+    for folder in Path(tempfile.gettempdir()).glob(f"{RENDER_TEMP_PREFIX}*"):
+        match = re.match(rf"{RENDER_TEMP_PREFIX}(?P<tag>.+-\d+)-", folder.name)
+        if match and folder.is_dir() and owner_gone(match["tag"], folder):
+            shutil.rmtree(folder, ignore_errors=True)
+
+
 def _write_mp4(
     tmp: Path,
     frames: Iterator[np.ndarray],
@@ -315,8 +377,11 @@ def _write_mp4(
     size: tuple[int, int],
     audio_path: Path | None,
 ) -> None:
-    with tempfile.TemporaryDirectory(prefix="dgsdp-render-") as work:
-        cmd = ["ffmpeg", "-y", "-hide_banner", "-loglevel", "error"]
+    stall_seconds = ffmpeg_timeout_seconds()
+    _remove_stale_render_dirs()
+    with tempfile.TemporaryDirectory(prefix=f"{RENDER_TEMP_PREFIX}{temp_tag()}-") as work:
+        song_seconds = 0.0 if audio_path is None else n_frames / fps
+        cmd = ["ffmpeg", "-y", "-hide_banner", "-loglevel", "error", "-nostdin"]
         cmd += ["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{size[0]}x{size[1]}", "-framerate", f"{fps}"]
         cmd += ["-i", "pipe:0"]
         if audio_path is not None:
@@ -330,19 +395,35 @@ def _write_mp4(
         cmd += ["-movflags", "+faststart", "-f", "mp4", str(tmp)]
         log_path = Path(work) / "ffmpeg.log"
         with open(log_path, "wb") as log:
-            proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=log)
+            # stdin=PIPE: frames are streamed; its own session, so a timeout kills ffmpeg and anything it started.
+            proc = subprocess.Popen(
+                cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=log, start_new_session=os.name == "posix"
+            )
             assert proc.stdin is not None
+            watchdog = _Watchdog(proc, stall_seconds)
             try:
                 for frame in frames:
                     proc.stdin.write(frame.tobytes())
+                    watchdog.deadline = time.monotonic() + stall_seconds
+                watchdog.deadline = time.monotonic() + stall_seconds + song_seconds
                 proc.stdin.close()
-            except BrokenPipeError:
-                pass  # ffmpeg stopped early; its log says why
+            except (BrokenPipeError, OSError):
+                pass  # ffmpeg stopped early (or was killed); its log or the watchdog says why
             except BaseException:
-                proc.kill()
+                _kill(proc)
                 proc.wait()
+                watchdog.stop()
                 raise
             code = proc.wait()
+            watchdog.stop()
+        if watchdog.fired:
+            raise DgsdpError(
+                f"ffmpeg stopped responding while writing the video"
+                f"{'' if audio_path is None else f' for {audio_path}'} and was stopped after {stall_seconds:g} s "
+                "without progress (set DGSDP_FFMPEG_TIMEOUT=<seconds> to wait longer). "
+                "Try another version of the song (e.g. re-encode it to 16-bit wav), or leave out the video "
+                "(formats without 'video')."
+            )
         if code != 0:
             message = log_path.read_text(errors="replace").strip()[-2000:]
             raise DgsdpError(

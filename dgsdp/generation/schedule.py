@@ -24,7 +24,12 @@ from dgsdp.errors import ConfigError
 SCHEDULE_EXAMPLE = '0-30: krump; 30-60: "slow graceful ballet jazz"; 60-end: house'
 _NUMBER = r"\d+(?:\.\d*)?|\.\d+"
 _SPAN_HEAD = re.compile(rf"\s*(?P<start>{_NUMBER})\s*s?\s*-\s*(?P<end>{_NUMBER}|end)\s*s?\s*:\s*", re.IGNORECASE)
-_LOOKS_LIKE_SCHEDULE = re.compile(rf"^\s*(?:{_NUMBER})\s*s?\s*-\s*(?:{_NUMBER}|end)\s*s?\s*:", re.IGNORECASE)
+# A time span at the start marks a schedule, colon or not: "0-30 krump" is a schedule missing its colon (an error),
+# not a description. Free text that starts with a time span on purpose takes the "text:" prefix.
+_LOOKS_LIKE_SCHEDULE = re.compile(rf"^\s*(?:{_NUMBER})\s*s?\s*-\s*(?:{_NUMBER}|end)\s*s?(?:\b|:|$)", re.IGNORECASE)
+_SPAN_WITHOUT_COLON = re.compile(
+    rf"\s*(?P<span>(?:{_NUMBER})\s*s?\s*-\s*(?:{_NUMBER}|end)\s*s?)(?!\s*:)", re.IGNORECASE
+)
 
 
 @dataclass(frozen=True)
@@ -37,7 +42,7 @@ class StyleSpan:
 
 
 def is_schedule(text: str) -> bool:
-    """Whether a style string is a schedule (starts with ``<start>-<end>:``) rather than one style."""
+    """Whether a style string is a schedule (starts with a time span ``<start>-<end>``) rather than one style."""
     return bool(_LOOKS_LIKE_SCHEDULE.match(text or ""))
 
 
@@ -54,6 +59,13 @@ def parse_schedule(text: str) -> list[StyleSpan]:
             break
         head = _SPAN_HEAD.match(text, pos)
         if head is None:
+            entry = text[pos:].split(";", 1)[0].strip()
+            missing = _SPAN_WITHOUT_COLON.match(text, pos)
+            if missing is not None:
+                raise _error(
+                    text,
+                    f"expected '<start>-<end>: <style>', but entry {entry!r} has no ':' after the time span {missing['span'].strip()!r}",
+                )
             raise _error(text, f"expected '<start>-<end>: <style>' at {text[pos:].strip()!r}")
         pos = head.end()
         if pos < n and text[pos] in "\"'":

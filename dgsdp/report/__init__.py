@@ -74,6 +74,32 @@ def find_results(paths: Iterable[str | Path]) -> list[Path]:
     return sorted(set(found))
 
 
+def read_results_file(path: Path) -> dict[str, Any]:
+    """One ``results.json`` with its shape checked: DataError (naming the file) for a binary file, a file of
+    another kind, or results whose rows are not what ``evaluate`` writes."""
+    try:
+        path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise DataError(
+            f"{path} is not a results.json (a binary file, not JSON text); give sweep folders, run folders or the "
+            "results.json files that evaluate.py writes"
+        ) from None
+    except OSError as e:
+        raise DataError(f"cannot read {path} ({e})") from e
+    try:
+        results = read_results(path)
+        rows = results["rows"]
+        if not isinstance(rows, list) or not all(
+            isinstance(r, dict) and isinstance(r.get("metrics"), dict) for r in rows
+        ):
+            raise TypeError("'rows' must be a list of rows with 'metrics'")
+        return results
+    except DataError:
+        raise
+    except (TypeError, KeyError, AttributeError, ValueError) as e:
+        raise DataError(f"{path} is not an evaluation result written by evaluate.py ({e})") from e
+
+
 def load_paper_tables(path: str | Path = PAPER_TABLES) -> dict[str, Any]:
     """The published numbers: {table id: {title, metrics, rows: {row key: {metric: value}}}}."""
     path = Path(path)
@@ -102,7 +128,7 @@ def build_tables(result_files: Sequence[Path], paper: dict[str, Any] | None = No
     grouped: dict[str, dict[str, ReportRow]] = {}
     metric_order: dict[str, list[str]] = {}
     for path in result_files:
-        results = read_results(path)
+        results = read_results_file(path)
         tid = table_id_of(results)
         rows = grouped.setdefault(tid, {})
         metric_order.setdefault(tid, list(results.get("metrics", METRICS)))
@@ -184,7 +210,7 @@ def write_report(
         from dgsdp.report.plots import bar_chart
 
         written["plots"] = [bar_chart(t, out / f"{t.table_id}.png") for t in tables]
-    logged = [read_results(f) for f in files]
+    logged = [read_results_file(f) for f in files]
     if wandb == "on" or (wandb == "auto" and any("WandbLogger" in r.get("loggers", []) for r in logged)):
         from dgsdp.report.wandb_push import push_tables
 

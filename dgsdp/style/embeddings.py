@@ -20,7 +20,7 @@ from dgsdp.errors import ConfigError, DataError
 from dgsdp.registry import register
 from dgsdp.resources import STYLE_PROMPTS_FILE
 from dgsdp.style.text_encoders import TextEncoder, plain_config
-from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
+from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab, split_free_text
 from dgsdp.utils.io import DiskCache, stable_hash
 
 StyleKind = Literal["none", "onehot", "genre", "prompt"]
@@ -245,7 +245,7 @@ class StyleEmbedder:
         settings = encoder.settings()
         cache = DiskCache(self.cache_dir, f"style-text-{encoder.name}-{stable_hash(settings, 8)}")
         key = stable_hash({"settings": settings, "texts": texts})
-        vectors = cache.get_or_compute(key, compute)["vectors"]
+        vectors = cache.get_or_compute(key, compute, required=("vectors",))["vectors"]
         if vectors.shape != (len(texts), encoder.dim):
             raise DataError(f"Cached style embeddings in {cache.dir} have the wrong shape; delete that folder.")
         return torch.from_numpy(vectors).float()
@@ -259,8 +259,11 @@ class StyleEmbedder:
         """Style vector ``(dim,)`` of a free-text description (inference); loads the text encoder if needed."""
         if self.kind == "none":
             raise ConfigError("This model was trained without style conditioning (style=none); drop the style text.")
+        text, on_purpose = split_free_text(text)
+        if not on_purpose:
+            self.vocab.check_not_near_miss(text)  # "locking" is a typo of "lock", not a description
         if self.kind == "onehot":
-            if text in self.vocab:
+            if text in self.vocab and not on_purpose:
                 return self.embed_genre(text)
             raise ConfigError(
                 f"This model was trained with one-hot styles and only accepts genre names, not free text {text!r}. "

@@ -7,6 +7,7 @@ Other datasets build their own vocabulary from a list or a yaml file.
 
 from __future__ import annotations
 
+import difflib
 import os
 import re
 from collections.abc import Iterable, Iterator, Mapping
@@ -15,6 +16,17 @@ from pathlib import Path
 import yaml
 
 from dgsdp.errors import ConfigError, DataError
+
+FREE_TEXT_PREFIX = "text:"
+"""``style="text: locking"`` uses the words as a free-text description even when they look like a genre name."""
+
+
+def split_free_text(style: str) -> tuple[str, bool]:
+    """``(text, True)`` for a style marked as free text with :data:`FREE_TEXT_PREFIX`, else ``(style, False)``."""
+    stripped = style.strip()
+    if stripped.lower().startswith(FREE_TEXT_PREFIX):
+        return stripped[len(FREE_TEXT_PREFIX) :].strip(), True
+    return style, False
 
 
 def _normalise(key: str) -> str:
@@ -94,6 +106,30 @@ class GenreVocab:
         if norm.startswith("g") and norm[1:] in self._lookup:
             return self._lookup[norm[1:]]
         return None
+
+    def suggest(self, key: str) -> str | None:
+        """The genre a short style string was probably meant to name ("locking" -> "Lock", "krumpp" -> "Krump"),
+        or None when it is a known genre or reads as a description rather than a misspelt genre."""
+        if self._find(key) is not None or not re.fullmatch(r"[\w\s-]{2,30}", key.strip()) or len(key.split()) > 3:
+            return None
+        norm = _normalise(key)
+        for i, name in enumerate(self._names):  # "locking", "popping", "krumping": a genre name plus an ending
+            name_norm = _normalise(name)
+            if len(name_norm) >= 3 and norm.startswith(name_norm) and len(norm) - len(name_norm) <= 4:
+                return self._names[i]
+        by_key = {_normalise(n): n for n in self._names}
+        close = difflib.get_close_matches(norm, list(by_key), n=1, cutoff=0.75)
+        return by_key[close[0]] if close else None
+
+    def check_not_near_miss(self, key: str) -> None:
+        """ConfigError when ``key`` is not a genre but is close to one: say which, and how to mean free text."""
+        suggestion = self.suggest(key)
+        if suggestion is not None:
+            raise ConfigError(
+                f"style {key!r} is not a genre; did you mean {suggestion.lower()!r} ({self.code(suggestion)})? "
+                f"To use it as a free-text description on purpose, write style='{FREE_TEXT_PREFIX} {key}'. "
+                f"Known genres: {self.describe()}."
+            )
 
     def index(self, key: str | int) -> int:
         """Index of a genre given by code ("KR", "gKR") or name ("krump"), case-insensitive; ints pass through."""

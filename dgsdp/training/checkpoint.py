@@ -1,66 +1,58 @@
-"""Checkpoints written atomically: a killed run never leaves a truncated file that a resume would read.
+"""Checkpoints written atomically: a killed run never leaves a truncated file that a resume would read, nor a
+checkpoint-sized temporary file anywhere.
 
-Only Lightning's public API is used: :class:`AtomicModelCheckpoint` is Lightning's ``ModelCheckpoint`` that, when
-the trainer is set up, wraps the strategy's checkpoint writer (``strategy.checkpoint_io``, a ``CheckpointIO``) in
-:class:`AtomicCheckpointIO`, so every checkpoint of the run (periodic, ``last.ckpt``, ``trainer.save_checkpoint``)
-is written to a temporary name in the same folder and renamed into place.
+Lightning's own saving goes through an fsspec transaction that first writes the whole checkpoint to a
+``tempfile.mkstemp`` file in the system temp folder (left behind, up to the checkpoint's size, when the process is
+killed; and the checkpoint then keeps mkstemp's ``0600`` permissions). :class:`AtomicCheckpointIO` writes next to
+the target instead, through :func:`dgsdp.utils.io.atomic_path`, whose leftovers the next run removes.
 """
 
 from __future__ import annotations
 
-import contextlib
-import logging
 import os
 from pathlib import Path
 from typing import Any
 
 import lightning as L
-from lightning.fabric.plugins import CheckpointIO, TorchCheckpointIO
+import torch
+from lightning.fabric.plugins.io.torch_io import TorchCheckpointIO
 from lightning.pytorch.callbacks import ModelCheckpoint
 
-log = logging.getLogger(__name__)
+from dgsdp.utils.io import atomic_path, remove_stale_temps
 
 
-class AtomicCheckpointIO(CheckpointIO):
-    """A ``CheckpointIO`` that writes through ``inner`` to ``.<name>.tmp`` beside the target, then renames it over
-    the target (``os.replace``: readers see the old file or the new one, never a partial one)."""
-
-    def __init__(self, inner: CheckpointIO | None = None) -> None:
-        self.inner = inner if inner is not None else TorchCheckpointIO()
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """``torch.save`` to a temporary file in the checkpoint's folder, fsync, rename into place."""
 
     def save_checkpoint(self, checkpoint: dict[str, Any], path: Any, storage_options: Any | None = None) -> None:
-        target = Path(path)
-        tmp = target.with_name(f".{target.name}.tmp")
-        try:
-            self.inner.save_checkpoint(checkpoint, tmp, storage_options=storage_options)
-            os.replace(tmp, target)
-        finally:
-            with contextlib.suppress(FileNotFoundError):
-                tmp.unlink()
+        if storage_options is not None:
+            raise TypeError(f"{type(self).__name__} takes no storage_options, got {storage_options!r}")
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            torch.save(checkpoint, f)
+            f.flush()
+            os.fsync(f.fileno())
 
-    def load_checkpoint(self, path: Any, *args: Any, **kwargs: Any) -> dict[str, Any]:
-        return self.inner.load_checkpoint(path, *args, **kwargs)
 
-    def remove_checkpoint(self, path: Any) -> None:
-        self.inner.remove_checkpoint(path)
-
-    def teardown(self) -> None:
-        self.inner.teardown()
+def use_atomic_checkpoint_io(trainer: L.Trainer) -> None:
+    """Make the trainer save through :class:`AtomicCheckpointIO` unless another plugin was chosen on purpose."""
+    strategy = trainer.strategy
+    if type(strategy.checkpoint_io) is TorchCheckpointIO:
+        strategy.checkpoint_io = AtomicCheckpointIO()
 
 
 class AtomicModelCheckpoint(ModelCheckpoint):
-    """Lightning's ModelCheckpoint whose files are written atomically (see :class:`AtomicCheckpointIO`)."""
+    """Lightning's ModelCheckpoint whose files appear atomically (see the module docstring)."""
 
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         super().setup(trainer, pl_module, stage)
-        strategy = trainer.strategy
-        current = strategy.checkpoint_io
-        if isinstance(current, AtomicCheckpointIO):
-            return
-        if type(current) is not TorchCheckpointIO:  # e.g. an asynchronous writer: a rename could race its write
-            log.warning("checkpoint writer %s kept as it is: checkpoints are not written atomically", current)
-            return
-        strategy.checkpoint_io = AtomicCheckpointIO(current)
+        use_atomic_checkpoint_io(trainer)
+        if trainer.is_global_zero:
+            folders = {Path(self.dirpath)} if self.dirpath else set()
+            resumed = getattr(trainer, "ckpt_path", None)
+            if resumed and Path(resumed).is_file():
+                folders.add(Path(resumed).parent)  # a resumed run cleans up after the killed one
+            for folder in folders:
+                remove_stale_temps(folder)
 
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         """Keep the final state too: a run that stops between two periodic checkpoints (``max_steps`` not a

@@ -7,11 +7,16 @@ data is written to a temporary file in the same folder and renamed into place on
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import logging
 import os
+import re
+import secrets
+import socket
 import struct
-import tempfile
+import time
 import zipfile
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
@@ -20,15 +25,94 @@ from typing import Any
 
 import numpy as np
 
+log = logging.getLogger(__name__)
+
+
+TEMP_SUFFIX = ".tmp"
+STALE_TEMP_SECONDS = 24 * 3600
+"""A temporary file of another machine (shared folder) is removed only after this long untouched."""
+_TAG = re.compile(r"\.(?P<host>[A-Za-z0-9_-]+)-(?P<pid>\d+)-[0-9a-f]{8}\.tmp$")
+
+
+def temp_tag() -> str:
+    """``<host>-<pid>``: tells which live process owns a temporary file, so others can clean up after a kill."""
+    host = re.sub(r"[^A-Za-z0-9_-]+", "_", socket.gethostname()) or "host"
+    return f"{host}-{os.getpid()}"
+
+
+def _host_tag() -> str:
+    return temp_tag().rsplit("-", 1)[0]
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    return True
+
+
+def owner_gone(tag: str, path: Path, now: float | None = None) -> bool:
+    """Whether the process named by a :func:`temp_tag` (``<host>-<pid>``) that wrote ``path`` no longer runs: on this
+    machine it has exited; for another machine's file, ``path`` has not been touched for a day."""
+    host, _, pid = tag.rpartition("-")
+    if not pid.isdigit():
+        return False
+    if host == _host_tag():
+        return int(pid) != os.getpid() and not _pid_alive(int(pid))
+    try:
+        return (now or time.time()) - path.stat().st_mtime > STALE_TEMP_SECONDS
+    except OSError:
+        return False
+
+
+def is_stale_temp(path: Path, now: float | None = None) -> bool:
+    """Whether a temporary file written by :func:`atomic_path` was left by a process that no longer runs."""
+    m = _TAG.search(path.name)
+    return m is not None and owner_gone(f"{m['host']}-{m['pid']}", path, now)
+
+
+def remove_stale_temps(folder: str | os.PathLike) -> int:
+    """Delete the temporary files that killed processes left in ``folder`` (not recursive); returns how many."""
+    removed = 0
+    folder = Path(folder)
+    if not folder.is_dir():
+        return 0
+    for path in folder.glob(f".*{TEMP_SUFFIX}"):
+        if path.is_file() and is_stale_temp(path):
+            with contextlib.suppress(OSError):
+                path.unlink()
+                removed += 1
+    if removed:
+        log.info("removed %d temporary file(s) left by an interrupted run in %s", removed, folder)
+    return removed
+
+
+def _create_temp(path: Path) -> Path:
+    """A new empty file next to ``path`` with the permissions a plain ``open`` would give (umask applied)."""
+    for _ in range(100):
+        tmp = path.with_name(f".{path.name}.{temp_tag()}-{secrets.token_hex(4)}{TEMP_SUFFIX}")
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        os.close(fd)
+        return tmp
+    raise FileExistsError(f"cannot create a temporary file next to {path}")
+
 
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path next to ``path``; rename it onto ``path`` only if the block succeeds."""
+    """Yield a temporary path next to ``path``; rename it onto ``path`` only if the block succeeds.
+
+    The temporary name carries the host and process id, so a later run can tell a file left by a killed process
+    (:func:`remove_stale_temps`) from one another process is still writing. The file gets the normal permissions
+    of a new file (``0666`` minus the umask), not the ``0600`` of ``tempfile.mkstemp``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+    tmp_path = _create_temp(path)
     try:
         yield tmp_path
         os.replace(tmp_path, path)
@@ -115,6 +199,8 @@ class DiskCache:
         self.dir = Path(root) / namespace
         self.hits = 0
         self.misses = 0
+        self.corrupt = 0
+        remove_stale_temps(self.dir)
 
     def path(self, key: str) -> Path:
         return self.dir / f"{key}.npz"
@@ -122,22 +208,30 @@ class DiskCache:
     def __contains__(self, key: str) -> bool:
         return self.path(key).is_file()
 
-    def load(self, key: str, mmap: bool = False) -> dict[str, np.ndarray] | None:
-        """The entry's arrays, or None. ``mmap``: memory-mapped read-only (see :func:`mmap_npz`), for large
-        entries read in slices (audio features of whole songs)."""
+    def load(self, key: str, required: tuple[str, ...] = (), mmap: bool = False) -> dict[str, np.ndarray] | None:
+        """The entry's arrays, or None on a miss. A corrupt entry (garbage bytes, a truncated zip, missing
+        ``required`` arrays) is reported once as a warning, removed, and treated as a miss. ``mmap``: memory-mapped
+        read-only (see :func:`mmap_npz`), for large entries read in slices (audio features of whole songs)."""
         p = self.path(key)
         if not p.is_file():
             return None
         if mmap:
             try:
-                return mmap_npz(p)
+                mapped = mmap_npz(p)
+                if all(k in mapped for k in required):
+                    return mapped
             except (OSError, ValueError, zipfile.BadZipFile, struct.error):
                 pass  # read it the ordinary way below (which drops a corrupt entry)
         try:
             with np.load(p, allow_pickle=False) as z:
-                return {k: z[k] for k in z.files}
-        except (OSError, ValueError, EOFError):
-            # A corrupt entry (e.g. disk full at write time on a filesystem without atomic rename) is a miss.
+                arrays = {k: z[k] for k in z.files}
+            missing = [k for k in required if k not in arrays]
+            if missing:
+                raise ValueError(f"no {', '.join(missing)} array")
+            return arrays
+        except Exception as e:  # noqa: BLE001 - BadZipFile, ValueError, EOFError, OSError, zlib.error, ...
+            log.warning("cache entry %s is corrupt (%s: %s); removed, it will be recomputed", p, type(e).__name__, e)
+            self.corrupt += 1
             p.unlink(missing_ok=True)
             return None
 
@@ -145,9 +239,14 @@ class DiskCache:
         atomic_save_npz(self.path(key), arrays)
 
     def get_or_compute(
-        self, key: str, compute: Callable[[], Mapping[str, np.ndarray]], mmap: bool = False
+        self,
+        key: str,
+        compute: Callable[[], Mapping[str, np.ndarray]],
+        required: tuple[str, ...] = (),
+        mmap: bool = False,
     ) -> dict[str, np.ndarray]:
-        found = self.load(key, mmap=mmap)
+        """The cached arrays of ``key``, or ``compute()``'s, saved; ``required`` arrays must be in a valid entry."""
+        found = self.load(key, required, mmap=mmap)
         if found is not None:
             self.hits += 1
             return found

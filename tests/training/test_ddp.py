@@ -11,15 +11,17 @@ import csv
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import torch
 from test_train import tiny_overrides
 
-from dgsdp.cli.config import PROJECT_ROOT, compose_config
+from dgsdp.cli.config import compose_config
 from dgsdp.cli.train import train
 from dgsdp.errors import ConfigError
 
+REPO_ROOT = Path(__file__).resolve().parents[2]  # the checkout under test: train.py lives here
 BATCH = 4
 WORLD = 2
 
@@ -36,7 +38,7 @@ def ddp_args(data, out, probe, *extra):
 
 
 def launch(cmd, tmp):
-    env = {**os.environ, "PYTHONPATH": str(PROJECT_ROOT), "OMP_NUM_THREADS": "1", "WANDB_MODE": "offline"}
+    env = {**os.environ, "PYTHONPATH": str(REPO_ROOT), "OMP_NUM_THREADS": "1", "WANDB_MODE": "offline"}
     env.pop("LOCAL_RANK", None)
     done = subprocess.run(cmd, env=env, cwd=tmp, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-5000:]
@@ -50,7 +52,7 @@ def probes(folder):
 @pytest.fixture(scope="module")
 def run_a(tmp_path_factory, tiny_synthetic):
     tmp = tmp_path_factory.mktemp("ddp_a")
-    cmd = [sys.executable, str(PROJECT_ROOT / "train.py"),
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"),
            *ddp_args(tiny_synthetic, tmp / "run", tmp / "probe", "trainer.max_steps=8")]  # fmt: skip
     launch(cmd, tmp)
     return {"dir": tmp / "run", "probe": probes(tmp / "probe")}
@@ -61,7 +63,7 @@ def run_b(tmp_path_factory, tiny_synthetic, run_a):
     tmp = tmp_path_factory.mktemp("ddp_b")
     ckpt = run_a["dir"] / "checkpoints" / "step0000003.ckpt"
     cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={WORLD}",
-           str(PROJECT_ROOT / "train.py"),
+           str(REPO_ROOT / "train.py"),
            *ddp_args(tiny_synthetic, tmp / "run", tmp / "probe", "trainer.max_steps=8", f"ckpt_path={ckpt}")]  # fmt: skip
     launch(cmd, tmp)
     return {"dir": tmp / "run", "probe": probes(tmp / "probe")}
