@@ -23,6 +23,7 @@ from dgsdp.cli.config import CONFIG_DIR, as_list
 from dgsdp.cli.train import run_main
 from dgsdp.editing import check_task, load_motion_file
 from dgsdp.errors import ConfigError, DgsdpError
+from dgsdp.export import check_formats
 from dgsdp.generation.pipeline import DanceGenerator, EditSettings, find_songs, write_motion
 from dgsdp.sampling import SamplingSettings
 
@@ -107,6 +108,9 @@ def generate(cfg: DictConfig) -> GenerationReport:
         raise ConfigError("give checkpoint=<path of a trained model's .ckpt file>")
     songs = find_songs(as_list(cfg.music) if not isinstance(cfg.music, str) else cfg.music)
     sampling = SamplingSettings.from_config(cfg.sampling)
+    formats = check_formats([str(f) for f in as_list(cfg.formats) or []])
+    if cfg.seconds is not None and float(cfg.seconds) <= 0:
+        raise ConfigError(f"seconds must be positive (the length of song to dance to), got {cfg.seconds}")
     generator = DanceGenerator.from_checkpoint(
         cfg.checkpoint,
         cache_dir=cfg.paths.cache_dir,
@@ -119,7 +123,6 @@ def generate(cfg: DictConfig) -> GenerationReport:
     if num_samples < 1:
         raise ConfigError(f"num_samples must be at least 1, got {num_samples}")
     out_dir = Path(cfg.output_dir).expanduser()
-    formats = [str(f) for f in as_list(cfg.formats) or []]
     report = GenerationReport()
     used: set[str] = set()
     bar = tqdm(songs, desc="songs", unit="song", disable=not cfg.progress)

@@ -79,15 +79,24 @@ class ClipSource:
         self._beats: dict[str, np.ndarray] = {}
 
     def load_split(self, split: str, with_music: bool = True) -> list[DanceSequence]:
-        """Sequences of a split (with the model's music features), or [] with a warning when there is none."""
+        """Sequences of a split (with the model's music features), or [] with a warning when the dataset has no such
+        split; unreadable files are one DataError listing them all."""
+        bad: list[tuple[str, str]] = []
         try:
-            return load_sequences(
+            sequences = load_sequences(
                 self.data_root, split, fps=MODEL_FPS, cache_dir=self.cache_dir,
-                audio_encoder=self.audio_encoder if with_music else None, progress=self.progress,
+                audio_encoder=self.audio_encoder if with_music else None, progress=self.progress, errors=bad,
             )  # fmt: skip
-        except DataError as e:
+        except DataError as e:  # no such split in this dataset
             self.warnings.add("data", "-", f"split {split!r} skipped: {e}")
             return []
+        if bad:  # a table computed without some of its dances would not be the protocol's
+            listing = "; ".join(f"{name}: {message}" for name, message in bad)
+            raise DataError(
+                f"{len(bad)} sequence(s) of split {split!r} in {self.data_root} cannot be read: {listing}. Fix or "
+                "remove these files (or add their names to the dataset's ignore list) and evaluate again"
+            )
+        return sequences
 
     def music_beats(self, seq: DanceSequence) -> np.ndarray:
         """Beat frames (K,) at 30 FPS of a sequence's music: column 34 of the 35-d librosa features (the model's

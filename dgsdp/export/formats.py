@@ -10,6 +10,7 @@ from dgsdp.errors import ConfigError
 MOTION_FORMATS: dict[str, str] = {
     "pkl": "AIST++ motion pickle (.pkl, y-up SMPL parameters)",
     "bvh": "BVH for Blender (.bvh)",
+    "glb": "glTF binary with a skinned body, for Blender, Unity and game engines (.glb)",
     "video": "stick-figure video with the music (.mp4; a silent .gif without ffmpeg)",
     "npy": "raw 151-d pose vectors (.npy)",
 }

@@ -315,13 +315,11 @@ def write_motion(
     title: str | None = None,
 ) -> list[Path]:
     """Write one motion (T, 151), unnormalised, as ``base`` + .pkl (AIST++), .bvh, .glb, .mp4/.gif and .npy."""
-    from dgsdp.export import render_video, save_aistpp_pkl, save_bvh, save_glb
+    from dgsdp.export import check_formats, render_video, save_aistpp_pkl, save_bvh, save_glb
 
     if motion.ndim != 2 or motion.shape[-1] != POSE_DIM:
         raise ValueError(f"write_motion needs one motion (T, {POSE_DIM}), got {tuple(motion.shape)}")
-    unknown = sorted(set(formats) - {"npy", "pkl", "bvh", "glb", "video"})
-    if unknown:
-        raise ConfigError(f"unknown output format(s) {unknown}; choose from npy, pkl, bvh, glb, video")
+    formats = check_formats(formats)
     base.parent.mkdir(parents=True, exist_ok=True)
     parts = unpack_pose(motion.double())
     written: list[Path] = []
