@@ -91,7 +91,9 @@ def check_no_targets(value: Any, where: str, source: Source) -> None:
     if isinstance(value, Mapping):
         for k, v in value.items():
             if isinstance(k, str) and k.startswith("_") and k.endswith("_"):
-                raise error(f"{where}.{k} = {v!r}: a building key is not allowed here; the stored config is data")
+                raise error(
+                    f"{where}.{k} = {v!r} refused: a building key is not allowed here; the stored config is data"
+                )
             check_no_targets(v, f"{where}.{k}", source)
     elif isinstance(value, list | tuple):
         for i, v in enumerate(value):
@@ -115,8 +117,8 @@ def resolve(kind: Kind, target: Any, where: str, source: Source) -> type:
     allowed = ", ".join(sorted(n for n in table if n.count(".") <= 2)) or "none"
     if source == "checkpoint":
         raise CheckpointError(
-            f"{where}._target_ = {target!r} is not one of the classes a checkpoint may build ({allowed}); "
-            "refusing to load it. Only load checkpoints from people you trust, and report a file like this one."
+            f"{where}._target_ = {target!r} refused: it is not one of the classes a stored config may build "
+            f"({allowed}). The file was not loaded; it may be damaged or made to run code."
         )
     raise ConfigError(
         f"{where}._target_ = {target!r} is not a registered {kind} class ({allowed}); decorate your class with "

@@ -211,4 +211,16 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         model.load_state_dict(state)
     except RuntimeError as e:
         raise CheckpointError(f"checkpoint {source} does not match its own configuration: {e}") from e
+    expected = model.state_dict()  # after loading: a shape mismatch is reported first, by load_state_dict
+    for name, value in state.items():
+        want = expected.get(name)
+        if (
+            want is not None
+            and value.dtype != want.dtype
+            and not (value.is_floating_point() and want.is_floating_point())
+        ):
+            raise CheckpointError(
+                f"checkpoint {source}: {name} is {value.dtype}, the model needs {want.dtype}; the file is damaged or "
+                "not a dgsdp checkpoint"
+            )
     return model.eval()

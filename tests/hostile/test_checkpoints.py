@@ -16,7 +16,7 @@ import torch
 from conftest import refused, shell_touch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "generation"))
-from gen_helpers import tiny_hparams, tiny_model  # noqa: E402
+from gen_helpers import tiny_model, tiny_spec  # noqa: E402
 
 from dgsdp.audio.jukebox_encoder import _load_checkpoint_state  # noqa: E402
 from dgsdp.errors import DgsdpError, WeightsError  # noqa: E402
@@ -31,7 +31,7 @@ def _model():
 def save_ckpt(path: Path, hparams: dict | None = None, state: dict | None = None, **extra) -> Path:
     model = _model()
     ckpt = {
-        "hyper_parameters": copy.deepcopy(hparams if hparams is not None else dict(model.hparams)),
+        "hyper_parameters": copy.deepcopy(hparams if hparams is not None else model.spec.to_dict()),
         "state_dict": state if state is not None else model.state_dict(),
         **extra,
     }
@@ -112,7 +112,7 @@ def test_wrong_dtypes(tmp_path):
 
 @pytest.mark.parametrize("broken", ["model: null", "model.d_model: -4", "model.n_heads: text", "conditioning: []"])
 def test_wrong_hyper_parameters(tmp_path, broken):
-    hparams = copy.deepcopy(tiny_hparams())
+    hparams = tiny_spec().to_dict()
     section, _, rest = broken.partition(".")
     if rest:
         key, value = rest.split(": ")
@@ -142,15 +142,14 @@ def test_stored_config_target_never_runs(tmp_path, marker, target, section):
     """The run config stored in a checkpoint is data: its ``_target_`` is never called with its arguments."""
     from dgsdp.generation import DanceGenerator
 
-    hparams = tiny_hparams()
-    hparams["config"]["audio"] = {"_target_": "dgsdp.audio.LibrosaEncoder"}  # valid, 35-d like the tiny model
-    hparams["config"][section] = _targets(marker)[target]
+    hparams = tiny_spec().to_dict()  # its audio config is LibrosaEncoder, 35-d like the tiny model
+    hparams[section] = _targets(marker)[target]
     path = save_ckpt(tmp_path / "target.ckpt", hparams=hparams)
     with pytest.raises(DgsdpError) as exc:
         generator = DanceGenerator.from_checkpoint(path, cache_dir=tmp_path / "cache")
         generator.audio_encoder  # noqa: B018 - builds the audio encoder from the stored config
         generator.resolve_style("krump")  # builds the style embedder from the stored config
-    refused(exc, target.split(".")[-1] if target != "nested" else "os.system")
+    refused(exc, target.split(".")[-1] if target != "nested" else "refused")
 
 
 # --- Jukebox weights: tensors only, no fallback that runs code ------------------------------------------------------
@@ -204,7 +203,7 @@ def test_no_unsafe_torch_load_left_in_the_package():
     assert np is not None
 
 
-# --- text encoder configs (stored in checkpoints as conditioning.text_encoder) -----------------------------------------
+# --- text encoder configs (stored in checkpoints inside the style config) -----------------------------------------
 @pytest.mark.parametrize("target", ["builtins.open", "numpy.savetxt", "os.system", "nested", "antigravity.fly"])
 def test_text_encoder_config_builds_only_text_encoders(tmp_path, marker, target):
     from dgsdp.style import StyleEmbedder
