@@ -24,8 +24,8 @@ if not OmegaConf.has_resolver("dgsdp_precision"):  # conf/trainer/ddp.yaml: bf16
 
 @contextlib.contextmanager
 def _hydra_runtime(cfg: DictConfig) -> Iterator[None]:
-    """Make ``${hydra:...}`` resolvable against ``cfg.hydra`` for the duration of the block, then put back
-    whatever was there (a running Hydra app's own config stays untouched)."""
+    """Make ``${hydra:...}`` resolvable against ``cfg.hydra`` for the duration of the block; a running Hydra app's
+    own config is put back afterwards."""
     from hydra.core.hydra_config import HydraConfig
 
     saved = HydraConfig.instance().cfg
@@ -33,7 +33,9 @@ def _hydra_runtime(cfg: DictConfig) -> Iterator[None]:
     try:
         yield
     finally:
-        HydraConfig.instance().cfg = saved
+        if saved is not None:  # inside a running Hydra app: its own config again
+            HydraConfig.instance().cfg = saved
+        # else (a script, a notebook, a test) the composed run's values stay readable, as in a Hydra app
 
 
 def compose_config(

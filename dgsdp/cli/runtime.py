@@ -66,6 +66,10 @@ class LogPrintedOutput(Callback):
         self._file: TextIO | None = None
 
     def on_job_start(self, config: DictConfig, **kwargs: Any) -> None:
+        from dgsdp.training.distributed import is_writer
+
+        if not is_writer():  # data-parallel ranks > 0: rank 0 keeps the run's one log
+            return
         runtime = config.hydra.runtime
         path = Path(runtime.output_dir) / f"{config.hydra.job.name}.log"
         try:

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
-from conftest import accepted, refused
+from conftest import TALLY, accepted, refused
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "generation"))
 from gen_helpers import SEQUENCES, make_tiny_dataset  # noqa: E402
@@ -171,8 +171,6 @@ def test_report_on_a_binary_file(tmp_path):
 
 def refused_like(message: str) -> None:
     """Count a refusal that reaches the user as a SystemExit message (entry points) rather than an exception."""
-    from conftest import TALLY
-
     assert message.startswith("error: ") and "Traceback" not in message
     TALLY["tried"] += 1
     TALLY["refused cleanly"] += 1

@@ -19,7 +19,15 @@ import dgsdp
 from dgsdp.resources import CONFIG_DIR, RESOURCES_DIR, SWEEPS_DIR
 
 SHIPPED = {"conf": CONFIG_DIR, "sweeps": SWEEPS_DIR, "resources": RESOURCES_DIR}
-SCRIPTS = ("dgsdp-train", "dgsdp-generate", "dgsdp-evaluate", "dgsdp-sweep", "dgsdp-report", "dgsdp-synth")
+SCRIPTS = (
+    "dgsdp-train",
+    "dgsdp-generate",
+    "dgsdp-evaluate",
+    "dgsdp-sweep",
+    "dgsdp-report",
+    "dgsdp-synth",
+    "dgsdp-studio",
+)
 
 
 def build_wheel(repo_root: Path, tmp: Path) -> Path:

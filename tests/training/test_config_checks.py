@@ -46,6 +46,7 @@ def test_resume_with_another_optimizer_or_size_lists_every_difference(tmp_path, 
     with pytest.raises(CheckpointError) as info:
         run(
             tmp_path / "b", tiny_synthetic, "optimizer=adamw", "model.ff_dim=32", "trainer.max_steps=2",
+            "trainer.max_epochs=-1",
             f"ckpt_path={first['checkpoint']}",
         )  # fmt: skip
     text = str(info.value)

@@ -102,9 +102,16 @@ def test_checkpoint_is_plain_and_loads_weights_only(tmp_path, tiny_synthetic):
 def test_checkpoint_from_other_config_fails_clearly(tmp_path, tiny_synthetic):
     _, result = run(tmp_path / "a", tiny_synthetic, "trainer.max_steps=1", "trainer.limit_val_batches=0")
     with pytest.raises(
-        ConfigError, match=r"(?s)different model configuration:.*conditioning.audio_dim: checkpoint 35, config 0"
+        ConfigError, match=r"(?s)different configuration:.*audio_dim: checkpoint 35, config 0"
     ):
-        run(tmp_path / "b", tiny_synthetic, "audio=none", "trainer.max_steps=2", f"ckpt_path={result['checkpoint']}")
+        run(
+            tmp_path / "b",
+            tiny_synthetic,
+            "audio=none",
+            "trainer.max_steps=2",
+            "trainer.max_epochs=-1",
+            f"ckpt_path={result['checkpoint']}",
+        )
     with pytest.raises(ConfigError, match="does not exist"):
         run(tmp_path / "c", tiny_synthetic, f"ckpt_path={tmp_path / 'missing.ckpt'}")
 
