@@ -101,9 +101,7 @@ def test_checkpoint_is_plain_and_loads_weights_only(tmp_path, tiny_synthetic):
 
 def test_checkpoint_from_other_config_fails_clearly(tmp_path, tiny_synthetic):
     _, result = run(tmp_path / "a", tiny_synthetic, "trainer.max_steps=1", "trainer.limit_val_batches=0")
-    with pytest.raises(
-        ConfigError, match=r"(?s)different configuration:.*audio_dim: checkpoint 35, config 0"
-    ):
+    with pytest.raises(ConfigError, match=r"(?s)different configuration:.*audio_dim: checkpoint 35, config 0"):
         run(
             tmp_path / "b",
             tiny_synthetic,
