@@ -1,6 +1,21 @@
-"""Sampling: DDPM/DDIM with classifier-free guidance and editing masks."""
+"""Sampling: DDPM, DDIM and the few-step ODE solvers DPM-Solver++(2M) and UniPC, with classifier-free guidance
+and editing masks."""
 
 from dgsdp.sampling.noise import Noise
-from dgsdp.sampling.sampler import Condition, Guidance, Sampler
+from dgsdp.sampling.sampler import METHODS, Condition, Guidance, PreparedCondition, Sampler, check_method
+from dgsdp.sampling.solvers import SOLVERS, DPMSolverPP2M, UniPC, make_solver, solver_timesteps
 
-__all__ = ["Condition", "Guidance", "Noise", "Sampler"]
+__all__ = [
+    "METHODS",
+    "SOLVERS",
+    "Condition",
+    "DPMSolverPP2M",
+    "Guidance",
+    "Noise",
+    "PreparedCondition",
+    "Sampler",
+    "UniPC",
+    "check_method",
+    "make_solver",
+    "solver_timesteps",
+]
