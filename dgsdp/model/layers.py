@@ -22,12 +22,25 @@ class RotaryEmbedding(nn.Module):
             raise ValueError(f"rotary embedding needs an even head dimension, got {head_dim}")
         inv_freq = 1.0 / base ** (torch.arange(0, head_dim, 2, dtype=torch.float32) / head_dim)
         self.register_buffer("inv_freq", inv_freq, persistent=False)
+        self._tables: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
+
+    def tables(self, n: int, device: torch.device, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+        """cos and sin (n, Dh/2), built once per length, device and dtype (not during training, where the
+        buffers may still move)."""
+        key = (n, device, dtype)
+        cached = self._tables.get(key)
+        if cached is not None and not self.training:
+            return cached
+        t = torch.arange(n, device=device, dtype=self.inv_freq.dtype)
+        freqs = torch.outer(t, self.inv_freq.to(device))  # (T, Dh/2)
+        tables = (freqs.cos().to(dtype), freqs.sin().to(dtype))
+        if not self.training:
+            self._tables[key] = tables
+        return tables
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """x (B, H, T, Dh) -> same shape, rotated by position."""
-        t = torch.arange(x.shape[-2], device=x.device, dtype=self.inv_freq.dtype)
-        freqs = torch.outer(t, self.inv_freq)  # (T, Dh/2)
-        cos, sin = freqs.cos().to(x.dtype), freqs.sin().to(x.dtype)
+        cos, sin = self.tables(x.shape[-2], x.device, x.dtype)
         x1, x2 = x[..., 0::2], x[..., 1::2]
         out = torch.stack((x1 * cos - x2 * sin, x1 * sin + x2 * cos), dim=-1)
         return out.flatten(-2)
@@ -51,11 +64,26 @@ class Attention(nn.Module):
         b, t, d = x.shape
         return x.view(b, t, self.n_heads, d // self.n_heads).transpose(1, 2)
 
-    def forward(self, x: torch.Tensor, memory: torch.Tensor | None = None) -> torch.Tensor:
-        """x (B, T, d) attends to ``memory`` (B, S, d), or to itself if None."""
-        src = x if memory is None else memory
+    def keys_values(self, src: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Keys and values (B, H, S, Dh) of ``src`` (B, S, d), before any rotary."""
+        k, v = self.kv(src).chunk(2, dim=-1)
+        return self._heads(k), self._heads(v)
+
+    def forward(
+        self,
+        x: torch.Tensor,
+        memory: torch.Tensor | None = None,
+        kv: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ) -> torch.Tensor:
+        """x (B, T, d) attends to ``memory`` (B, S, d), or to itself if None; or, without rotary, to keys and
+        values ``kv`` computed earlier by :meth:`keys_values`."""
         q = self._heads(self.q(x))
-        k, v = (self._heads(a) for a in self.kv(src).chunk(2, dim=-1))
+        if kv is None:
+            k, v = self.keys_values(x if memory is None else memory)
+        else:
+            if self.rotary is not None:
+                raise ValueError("precomputed keys and values are for attention without rotary positions")
+            k, v = kv
         if self.rotary is not None:
             q, k = self.rotary(q), self.rotary(k)
         y = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)

@@ -78,10 +78,13 @@ class PreparedCondition:
     own conditioning (music encoder output, style, cross-attention keys and values) computed once.
     """
 
-    def __init__(self, denoiser: Callable, cond: Condition, batch: int, device: torch.device | str) -> None:
+    def __init__(
+        self, denoiser: Callable, cond: Condition, batch: int, n_frames: int, device: torch.device | str
+    ) -> None:
         self.denoiser = denoiser
         self.cond = cond
         self.batch = batch
+        self.n_frames = n_frames
         self.device = device
         self._by_passes: dict[Passes, dict] = {}
 
@@ -101,7 +104,9 @@ class PreparedCondition:
         keep_style = torch.tensor([p[1] for p in passes], device=self.device).repeat_interleave(b)
         music, style = rep(self.cond.music), rep(self.cond.style)
         condition = getattr(self.denoiser, "condition", None)
-        cached = None if condition is None else condition(music, style, keep_music, keep_style)
+        cached = None
+        if condition is not None:
+            cached = condition(music, style, keep_music, keep_style, n_frames=self.n_frames, batch=k * b)
         if cached is not None:
             return {"cond": cached}
         return {"music": music, "style": style, "keep_music": keep_music, "keep_style": keep_style}
@@ -141,7 +146,7 @@ class Sampler:
         passes = self._passes(cond, guidance)
         k = len(passes)
         if prepared is None:
-            prepared = PreparedCondition(self.denoiser, cond, x_t.shape[0], x_t.device)
+            prepared = PreparedCondition(self.denoiser, cond, x_t.shape[0], x_t.shape[1], x_t.device)
         xs = x_t if k == 1 else x_t.repeat(k, *([1] * (x_t.ndim - 1)))
         out = self.denoiser(xs, t.repeat(k), **prepared.inputs(passes))
         outs = out.chunk(k)
@@ -207,7 +212,7 @@ class Sampler:
                 raise ValueError("a mask needs the known motion it refers to")
             mask = mask.to(device=device, dtype=x.dtype)
             known = known.to(device=device, dtype=x.dtype)
-        prepared = PreparedCondition(self.denoiser, cond, b, device)
+        prepared = PreparedCondition(self.denoiser, cond, b, shape[1], device)
         solver = make_solver(method, self.diffusion, ts) if method in SOLVERS else None
         z = x  # the initial noise: the known region's ODE path for the solvers
 
