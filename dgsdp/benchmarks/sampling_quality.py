@@ -1,0 +1,112 @@
+"""Quality versus sampling steps: one checkpoint evaluated with DDPM-1000, DDIM-50 and the few-step solvers.
+
+``python -m dgsdp.benchmarks.sampling_quality --checkpoint <ckpt> [--settings ddim-50 dpmpp_2m-10 ...]
+[--trials 3] [--clips-per-trial N] [--out docs-table.md]`` runs ``evaluate.py`` once per setting (the Table I
+protocol: 5 s clips of the test music, guidance w = 2), each with ``protocol.trials`` trials seeded seed, seed+1,
+... (so the spread is over seeds and, with ``--clips-per-trial``, over the clips drawn), and times each setting's
+sampling of one batch of 5 s clips directly on the checkpoint (seconds of compute per second of dance). It writes
+a markdown table of FID_k, FID_g, Div_k, Div_g, BAS, PFC and StyleAcc (mean ± std over trials) after every
+setting, so a partial run leaves the rows it finished.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from dgsdp.sampling import Guidance, check_method
+
+DEFAULT_SETTINGS = ["ddim-50", "dpmpp_2m-25", "dpmpp_2m-10", "dpmpp_2m-5", "unipc-25", "unipc-10", "unipc-5",
+                    "ddpm-1000"]  # fmt: skip
+COLUMNS = [("FID_k", "FID_k"), ("FID_g", "FID_g"), ("Div_k", "Div_k"), ("Div_g", "Div_g"), ("BeatAlign", "BAS"),
+           ("PFC", "PFC"), ("StyleAcc", "StyleAcc")]  # fmt: skip
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def parse_setting(text: str) -> tuple[str, int]:
+    method, _, steps = text.rpartition("-")
+    check_method(method)
+    return method, int(steps)
+
+
+def evaluate_setting(checkpoint: str, method: str, steps: int, out_dir: Path, overrides: list[str]) -> dict:
+    """Run evaluate.py (a subprocess: its command line is the stable interface) and return its results.json."""
+    cmd = [sys.executable, str(ROOT / "evaluate.py"), f"checkpoint={checkpoint}", "protocol=table1",
+           f"sampling.method={method}", f"sampling.steps={steps}", "protocol.guidance_weights=[2.0]",
+           "progress=false", "logger=none", f"hydra.run.dir={out_dir}", *overrides]  # fmt: skip
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"evaluate.py failed for {method}-{steps}:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    return json.loads(next(out_dir.rglob("results.json")).read_text())
+
+
+def time_setting(checkpoint: str, method: str, steps: int, *, clips: int, seconds: float = 5.0) -> float:
+    """Seconds of sampling compute per second of dance for one batch of ``clips`` clips (guidance w = 2)."""
+    from dgsdp.training.module import load_checkpoint
+
+    model = load_checkpoint(checkpoint).eval()
+    n = int(round(seconds * 30))
+    gen = torch.Generator().manual_seed(0)
+    dims = model.hparams["conditioning"]
+    music = torch.randn(clips, n, int(dims["audio_dim"]), generator=gen) if dims.get("audio_dim") else None
+    style = torch.randn(clips, int(dims["style_dim"]), generator=gen) if dims.get("style_dim") else None
+    start = time.perf_counter()
+    model.sample_batch(music, style, n_frames=n, batch=clips, guidance=Guidance(2.0, 1.0), method=method,
+                       steps=steps, generator=torch.Generator().manual_seed(0))  # fmt: skip
+    return (time.perf_counter() - start) / (clips * seconds)
+
+
+def fmt(summary: dict | None, digits: int = 2) -> str:
+    if not summary or summary.get("mean") is None:
+        return "n/a"
+    return f"{summary['mean']:.{digits}f} ± {summary['std']:.{digits}f}"
+
+
+def write_table(path: Path, rows: list[tuple[str, dict, float]], header: str) -> None:
+    lines = [header, "", "| sampler | " + " | ".join(c for _, c in COLUMNS) + " | compute s per s of dance |",
+             "|---" * (len(COLUMNS) + 2) + "|"]  # fmt: skip
+    for name, metrics, sps in rows:
+        digits = {"PFC": 3, "BeatAlign": 3, "StyleAcc": 3}
+        cells = [fmt(metrics.get(key), digits.get(key, 2)) for key, _ in COLUMNS]
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {sps:.3f} |")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--checkpoint", required=True)
+    parser.add_argument("--settings", nargs="+", default=DEFAULT_SETTINGS, help="<method>-<steps> each")
+    parser.add_argument("--trials", type=int, default=3, help="trials (seeds) per setting")
+    parser.add_argument("--clips-per-trial", type=int, default=None, help="clips per trial (default: every clip)")
+    parser.add_argument("--timing-clips", type=int, default=10, help="clips in the timed batch")
+    parser.add_argument("--work-dir", default="outputs/sampling_quality")
+    parser.add_argument("--out", default="sampling_quality.md", help="markdown table written here")
+    parser.add_argument("overrides", nargs="*", help="more evaluate.py overrides (key=value)")
+    args = parser.parse_args(argv)
+    settings = [parse_setting(s) for s in args.settings]
+    overrides = [f"protocol.trials={args.trials}", *args.overrides]
+    if args.clips_per_trial:
+        overrides.append(f"protocol.clips_per_trial={args.clips_per_trial}")
+    work = Path(args.work_dir)
+    header = (f"Checkpoint `{Path(args.checkpoint).name}`, protocol table1 (5 s clips, guidance w = 2), "
+              f"{args.trials} trials (seeds), overrides: {' '.join(overrides)}")  # fmt: skip
+    rows = []
+    for method, steps in settings:
+        name = f"{method}-{steps}"
+        start = time.perf_counter()
+        results = evaluate_setting(args.checkpoint, method, steps, work / name, overrides)
+        row = next(r for r in results["rows"] if r["kind"] == "generated")
+        sps = time_setting(args.checkpoint, method, steps, clips=args.timing_clips)
+        rows.append((name, row["metrics"], sps))
+        write_table(Path(args.out), rows, header)
+        print(f"{name}: {time.perf_counter() - start:.0f} s, {sps:.3f} s per s of dance", flush=True)
+
+
+if __name__ == "__main__":
+    main()
