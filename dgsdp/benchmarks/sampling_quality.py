@@ -29,24 +29,33 @@ COLUMNS = [("FID_k", "FID_k"), ("FID_g", "FID_g"), ("Div_k", "Div_k"), ("Div_g",
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def parse_setting(text: str) -> tuple[str, int]:
-    method, _, steps = text.rpartition("-")
-    check_method(method)
-    return method, int(steps)
+def parse_setting(text: str) -> tuple[str, int, float | None]:
+    """``<method>-<steps>`` or ``ddim-<steps>-eta<eta>`` (e.g. ``ddim-50-eta0``) -> (method, steps, eta)."""
+    parts = text.split("-")
+    if len(parts) not in (2, 3) or (len(parts) == 3 and not parts[2].startswith("eta")):
+        raise ValueError(f"setting {text!r}: use <method>-<steps> or ddim-<steps>-eta<eta>, e.g. dpmpp_2m-10")
+    check_method(parts[0])
+    return parts[0], int(parts[1]), float(parts[2][3:]) if len(parts) == 3 else None
 
 
-def evaluate_setting(checkpoint: str, method: str, steps: int, out_dir: Path, overrides: list[str]) -> dict:
+def evaluate_setting(
+    checkpoint: str, method: str, steps: int, eta: float | None, out_dir: Path, overrides: list[str]
+) -> dict:
     """Run evaluate.py (a subprocess: its command line is the stable interface) and return its results.json."""
     cmd = [sys.executable, str(ROOT / "evaluate.py"), f"checkpoint={checkpoint}", "protocol=table1",
            f"sampling.method={method}", f"sampling.steps={steps}", "protocol.guidance_weights=[2.0]",
            "progress=false", "logger=none", f"hydra.run.dir={out_dir}", *overrides]  # fmt: skip
+    if eta is not None:
+        cmd.append(f"sampling.eta={eta}")
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"evaluate.py failed for {method}-{steps}:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
     return json.loads(next(out_dir.rglob("results.json")).read_text())
 
 
-def time_setting(checkpoint: str, method: str, steps: int, *, clips: int, seconds: float = 5.0) -> float:
+def time_setting(
+    checkpoint: str, method: str, steps: int, eta: float | None, *, clips: int, seconds: float = 5.0
+) -> float:
     """Seconds of sampling compute per second of dance for one batch of ``clips`` clips (guidance w = 2)."""
     from dgsdp.training.module import load_checkpoint
 
@@ -58,7 +67,7 @@ def time_setting(checkpoint: str, method: str, steps: int, *, clips: int, second
     style = torch.randn(clips, int(dims["style_dim"]), generator=gen) if dims.get("style_dim") else None
     start = time.perf_counter()
     model.sample_batch(music, style, n_frames=n, batch=clips, guidance=Guidance(2.0, 1.0), method=method,
-                       steps=steps, generator=torch.Generator().manual_seed(0))  # fmt: skip
+                       steps=steps, eta=1.0 if eta is None else eta, generator=torch.Generator().manual_seed(0))  # fmt: skip
     return (time.perf_counter() - start) / (clips * seconds)
 
 
@@ -97,12 +106,12 @@ def main(argv: list[str] | None = None) -> None:
     header = (f"Checkpoint `{Path(args.checkpoint).name}`, protocol table1 (5 s clips, guidance w = 2), "
               f"{args.trials} trials (seeds), overrides: {' '.join(overrides)}")  # fmt: skip
     rows = []
-    for method, steps in settings:
-        name = f"{method}-{steps}"
+    for text, (method, steps, eta) in zip(args.settings, settings, strict=True):
+        name = text if eta is None else f"{method}-{steps} eta={eta:g}"
         start = time.perf_counter()
-        results = evaluate_setting(args.checkpoint, method, steps, work / name, overrides)
+        results = evaluate_setting(args.checkpoint, method, steps, eta, work / text, overrides)
         row = next(r for r in results["rows"] if r["kind"] == "generated")
-        sps = time_setting(args.checkpoint, method, steps, clips=args.timing_clips)
+        sps = time_setting(args.checkpoint, method, steps, eta, clips=args.timing_clips)
         rows.append((name, row["metrics"], sps))
         write_table(Path(args.out), rows, header)
         print(f"{name}: {time.perf_counter() - start:.0f} s, {sps:.3f} s per s of dance", flush=True)
