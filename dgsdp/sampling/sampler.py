@@ -188,8 +188,8 @@ class Sampler:
     ) -> torch.Tensor:
         """Sample x0 of ``shape`` (B, T, 151), normalised.
 
-        method: ``ddim`` (``steps``, ``eta``), ``ddpm`` (every diffusion step), or a deterministic ODE solver
-        (``dpmpp_2m``, ``unipc``; ``eta`` is not used) evaluated at ``steps`` diffusion steps placed by
+        method: ``ddim`` (``steps``, ``eta``), ``ddpm`` (every diffusion step), or a few-step solver
+        (``dpmpp_2m``, ``unipc``: deterministic ODE solvers; ``dpmpp_2m_sde``: stochastic; ``eta`` is not used) evaluated at ``steps`` diffusion steps placed by
         ``spacing`` (``time`` or ``lambda``, see :func:`solver_timesteps`).
 
         generator: one generator for the batch, one per group of rows (see :class:`Noise`), or a Noise; every
@@ -198,8 +198,9 @@ class Sampler:
         mask (B or 1, T, 151) with 1 where ``known`` (normalised, same shape as the output) is given. DDPM/DDIM:
         after every step the known region is replaced by ``known`` noised to the new step with fresh noise.
         ODE solvers: the known region of every x0 prediction is replaced by ``known`` before the update, and that
-        of the state by ``known`` on its own ODE path, alpha_t known + sigma_t z with the initial noise z. Both
-        end with ``known`` itself. ``step_callback(x, t_next)`` may rewrite the state after every step
+        of the state by ``known`` on its own ODE path, alpha_t known + sigma_t z with the initial noise z (the
+        SDE solver pins the start only: its update with x0 = known keeps the known region on a path of that
+        form). All end with ``known`` itself. ``step_callback(x, t_next)`` may rewrite the state after every step
         (long-form consistency uses it); UniPC also calls it after each correction, ``step_callback(x, t)``.
         """
         guidance = guidance or Guidance()
@@ -216,11 +217,19 @@ class Sampler:
         solver = make_solver(method, self.diffusion, ts) if method in SOLVERS else None
         z = x  # the initial noise: the known region's ODE path for the solvers
 
+        def draw(shape: Sequence[int]) -> torch.Tensor:
+            return noise.randn(shape, device=device, dtype=x.dtype)
+
         def pin_state(x: torch.Tensor, i: int) -> torch.Tensor:
             """The solver's state at point i with the known region on its ODE path."""
             if mask is None:
                 return x
-            target = known if i >= len(ts) else solver.alpha[i] * known + solver.sigma[i] * z
+            if i >= len(ts):
+                target = known
+            elif solver.stochastic and i > 0:  # the SDE step with x0 = known keeps the known region on its own path
+                return x
+            else:
+                target = solver.alpha[i] * known + solver.sigma[i] * z
             return mask * target + (1 - mask) * x
 
         if solver is not None:
@@ -239,7 +248,7 @@ class Sampler:
                         x = pin_state(corrected, i)
                         if step_callback is not None:
                             x = step_callback(x, t_now)
-                x = pin_state(solver.step(i, x, x0), i + 1)
+                x = pin_state(solver.step(i, x, x0, noise=draw), i + 1)
             else:
                 if t_next < 0:
                     x = x0

@@ -8,12 +8,15 @@ from s to t is DDIM with eta = 0::
 
 - DPM-Solver++(2M) (Lu et al. 2022, "DPM-Solver++", Algorithm 2): replaces x0_s by the multistep estimate
   (1 + 1/(2r)) x0_s - 1/(2r) x0_prev with r = h_prev / h.
+- DPM-Solver++(2M) SDE (``dpmpp_2m_sde``, the same paper's stochastic variant): each step adds fresh noise,
+  x_t = (sigma_t / sigma_s) e^-h x_s + alpha_t (1 - e^-2h) (x0_s + D / 2) + sigma_t sqrt(1 - e^-2h) z with
+  D = (x0_s - x0_prev) / r; its first-order step is DDIM with eta = 1.
 - UniPC (Zhao et al. 2023, "UniPC"): the predictor UniP-2 and, once the model has been evaluated at the new
   point, the corrector UniC, which redoes the last step with that evaluation included (no extra model call);
   B(h) = exp(-h) - 1 ("bh2", recommended for guided sampling) or -h ("bh1").
 
-The last step goes to sigma = 0 and returns the last x0 prediction, as the DDIM sampler does. Neither solver
-draws noise. Coefficients are computed in float64 from the schedule's alpha_bar.
+The last step goes to sigma = 0 and returns the last x0 prediction, as the DDIM sampler does. Only the SDE
+variant draws noise (through the sampler's ``Noise``). Coefficients are computed in float64 from the schedule's alpha_bar.
 """
 
 from __future__ import annotations
@@ -24,7 +27,8 @@ import torch
 
 from dgsdp.diffusion import GaussianDiffusion
 
-SOLVERS = ("dpmpp_2m", "unipc", "unipc_bh1")
+SOLVERS = ("dpmpp_2m", "dpmpp_2m_sde", "unipc", "unipc_bh1")
+STOCHASTIC_SOLVERS = ("dpmpp_2m_sde",)
 SPACINGS = ("time", "lambda")
 
 
@@ -89,14 +93,17 @@ class MultistepSolver:
     def correct(self, i: int, x: torch.Tensor, x0: torch.Tensor) -> torch.Tensor:
         return x
 
-    def step(self, i: int, x: torch.Tensor, x0: torch.Tensor) -> torch.Tensor:
+    stochastic = False
+
+    def step(self, i: int, x: torch.Tensor, x0: torch.Tensor, noise=None) -> torch.Tensor:
+        """``noise(shape)`` draws Gaussian noise (stochastic solvers only)."""
         raise NotImplementedError
 
 
 class DPMSolverPP2M(MultistepSolver):
     """DPM-Solver++(2M): second order from the second step on, first order on the first and the last step."""
 
-    def step(self, i: int, x: torch.Tensor, x0: torch.Tensor) -> torch.Tensor:
+    def step(self, i: int, x: torch.Tensor, x0: torch.Tensor, noise=None) -> torch.Tensor:
         self._remember(x0)
         if i == self.n_steps - 1:  # to sigma = 0: the first-order step returns x0 itself
             return x0
@@ -107,6 +114,30 @@ class DPMSolverPP2M(MultistepSolver):
             r = (self.lam[s] - self.lam[s - 1]) / h
             d = (1 + 1 / (2 * r)) * x0 - (1 / (2 * r)) * self.x0s[0]
         return (self.sigma[t] / self.sigma[s]) * x - (self.alpha[t] * math.expm1(-h)) * d
+
+
+class DPMSolverPP2MSDE(MultistepSolver):
+    """DPM-Solver++(2M) SDE: second order from the second step on; ``noise(shape)`` draws each step's z."""
+
+    stochastic = True
+
+    def step(self, i: int, x: torch.Tensor, x0: torch.Tensor, noise=None) -> torch.Tensor:
+        self._remember(x0)
+        if i == self.n_steps - 1:
+            return x0
+        s, t = i, i + 1
+        h = self.lam[t] - self.lam[s]
+        d = x0
+        if i > 0:
+            r = (self.lam[s] - self.lam[s - 1]) / h
+            d = x0 + (0.5 / r) * (x0 - self.x0s[0])
+        decay = -math.expm1(-2 * h)  # 1 - e^-2h
+        z = noise(x.shape)
+        return (
+            (self.sigma[t] / self.sigma[s] * math.exp(-h)) * x
+            + (self.alpha[t] * decay) * d
+            + (self.sigma[t] * math.sqrt(decay)) * z
+        )
 
 
 class UniPC(MultistepSolver):
@@ -151,7 +182,7 @@ class UniPC(MultistepSolver):
             res = rho_1 * (self.x0s[0] - m0) / r1 + rho_t * d_t
         return base - (self.alpha[t] * b_h) * res
 
-    def step(self, i: int, x: torch.Tensor, x0: torch.Tensor) -> torch.Tensor:
+    def step(self, i: int, x: torch.Tensor, x0: torch.Tensor, noise=None) -> torch.Tensor:
         self._remember(x0)
         self.last_x = x
         if i == self.n_steps - 1:
@@ -170,6 +201,8 @@ class UniPC(MultistepSolver):
 def make_solver(method: str, diffusion: GaussianDiffusion, timesteps: list[int]) -> MultistepSolver:
     if method == "dpmpp_2m":
         return DPMSolverPP2M(diffusion, timesteps)
+    if method == "dpmpp_2m_sde":
+        return DPMSolverPP2MSDE(diffusion, timesteps)
     if method == "unipc":
         return UniPC(diffusion, timesteps, "bh2")
     if method == "unipc_bh1":

@@ -10,10 +10,10 @@ from generation.gen_helpers import AUDIO_DIM, random_motion
 from dgsdp.diffusion import GaussianDiffusion
 from dgsdp.editing import build_mask
 from dgsdp.generation import sample_long
-from dgsdp.sampling import Condition, Guidance, Sampler, solver_timesteps
+from dgsdp.sampling import Condition, DPMSolverPP2MSDE, Guidance, Sampler, make_solver, solver_timesteps
 from dgsdp.sampling.sampler import check_method
 
-SOLVERS = ("dpmpp_2m", "unipc", "unipc_bh1")
+SOLVERS = ("dpmpp_2m", "unipc", "unipc_bh1")  # the deterministic ones
 MU, STD = 0.3, 0.2  # the toy data: every channel independent N(MU, STD^2), well inside the clamp range
 
 
@@ -171,3 +171,20 @@ def test_longform_overlaps_agree_after_every_solver_update(tiny_model):
     assert len(seen) == 5
     for x in seen[1:]:
         assert torch.equal(x[1:, :75], x[:-1, 75:])
+
+
+def test_sde_solver_first_step_is_ddim_eta_one_and_lands_on_the_data_distribution(toy):
+    diffusion, sampler = toy
+    solver = make_solver("dpmpp_2m_sde", diffusion, [999, 600, 300, 100])
+    x, x0, z = torch.randn(4, 5), 0.3 * torch.randn(4, 5), torch.randn(4, 5)
+    solver.step(0, x, x0, noise=lambda shape: z)  # 999 -> 600
+    first = DPMSolverPP2MSDE(diffusion, [600, 300]).step(0, x, x0, noise=lambda shape: z)
+    ddim = diffusion.ddim_step(x, torch.full((4,), 600), torch.full((4,), 300), x0, eta=1.0, noise=z)
+    torch.testing.assert_close(first, ddim, atol=1e-5, rtol=0)
+    outs = [sample_toy(sampler, "dpmpp_2m_sde", 10, seed=s) for s in (0, 0, 1)]
+    assert torch.equal(outs[0], outs[1]) and not torch.equal(outs[0], outs[2])
+    assert abs(outs[0].mean().item() - MU) < 0.01 and abs(outs[0].std().item() - STD) < 0.01
+    known = torch.full((64, 8, 16), -0.5)
+    mask = torch.zeros(1, 8, 16)
+    mask[:, :3] = 1
+    assert torch.equal(sample_toy(sampler, "dpmpp_2m_sde", 10, mask=mask, known=known)[:, :3], known[:, :3])
