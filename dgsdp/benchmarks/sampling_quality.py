@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import subprocess
 import sys
 import time
@@ -96,9 +97,19 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--timing-clips", type=int, default=10, help="clips in the timed batch")
     parser.add_argument("--work-dir", default="outputs/sampling_quality")
     parser.add_argument("--out", default="sampling_quality.md", help="markdown table written here")
+    parser.add_argument("--timing-only", type=int, default=0, metavar="REPEATS",
+                        help="only time the settings, in this many interleaved repeats (medians)")  # fmt: skip
     parser.add_argument("overrides", nargs="*", help="more evaluate.py overrides (key=value)")
     args = parser.parse_args(argv)
     settings = [parse_setting(s) for s in args.settings]
+    if args.timing_only:
+        times: dict[str, list[float]] = {text: [] for text in args.settings}
+        for _ in range(args.timing_only):
+            for text, (method, steps, eta) in zip(args.settings, settings, strict=True):
+                times[text].append(time_setting(args.checkpoint, method, steps, eta, clips=args.timing_clips))
+        for text, ts in times.items():
+            print(f"{text}: {statistics.median(ts):.4f} s per s of dance (median of {len(ts)})", flush=True)
+        return
     overrides = [f"protocol.trials={args.trials}", *args.overrides]
     if args.clips_per_trial:
         overrides.append(f"protocol.clips_per_trial={args.clips_per_trial}")
