@@ -14,12 +14,11 @@ import time
 from dataclasses import dataclass
 
 import torch
-from omegaconf import OmegaConf
 
 from dgsdp.generation.longform import sample_long
-from dgsdp.resources import CONFIG_DIR
 from dgsdp.sampling import Guidance
 from dgsdp.training.module import DanceDiffusion
+from dgsdp.training.spec import RunSpec
 
 # Music and style sizes of each benchmarked model: small runs on the 35-d librosa features with one-hot
 # genres; paper is EDGE/DGSDP's size with Jukebox features and CLIP-sized style vectors.
@@ -43,17 +42,9 @@ class Timing:
 
 def build_model(size: str) -> DanceDiffusion:
     """A random-init model of conf/model/<size>.yaml with the music/style sizes of :data:`SIZES`."""
-    model_cfg = OmegaConf.to_container(OmegaConf.load(CONFIG_DIR / "model" / f"{size}.yaml"))
-    model_cfg.pop("ema_decay", None)
-    model_cfg["style_injection"] = "modulation"
     dims = SIZES[size]
-    hparams = {
-        "model": model_cfg,
-        "conditioning": {"audio_dim": dims["audio_dim"], "style_dim": dims["style_dim"]},
-        "diffusion": {},
-        "ema": {"decay": 0.9999},
-    }
-    return DanceDiffusion(hparams).eval()
+    spec = RunSpec.from_groups(model=size, audio_dim=dims["audio_dim"], style_dim=dims["style_dim"])
+    return DanceDiffusion(spec).eval()
 
 
 def time_generation(size: str, device: str, *, seconds: float, steps: int, bf16: bool, repeats: int = 1) -> Timing:

@@ -19,10 +19,9 @@ import resource
 import time
 
 import torch
-from omegaconf import OmegaConf
 
-from dgsdp.resources import CONFIG_DIR
 from dgsdp.training.module import DanceDiffusion
+from dgsdp.training.spec import RunSpec
 
 # Dense (no sparsity) peak tensor TFLOP/s from NVIDIA's spec sheets: (bf16, tf32, fp32 without tensor cores).
 # Matched against torch.cuda.get_device_name() in this order (more specific names first).
@@ -40,25 +39,11 @@ AUDIO_DIM = {"small": 35, "paper": 4800}  # the default librosa features; the pa
 
 
 def build(model_name: str, style_dim: int) -> DanceDiffusion:
-    model_cfg = OmegaConf.to_container(OmegaConf.load(CONFIG_DIR / "model" / f"{model_name}.yaml"))
-    ema_decay = model_cfg.pop("ema_decay")
-    diffusion = OmegaConf.to_container(OmegaConf.load(CONFIG_DIR / "diffusion" / "default.yaml"))
-    drop = {k: diffusion.pop(k) for k in ("music_drop_prob", "style_drop_prob")}
-    hparams = {
-        "model": {**model_cfg, "style_injection": "modulation", "also_concat": True},
-        "conditioning": {
-            "audio_dim": AUDIO_DIM[model_name],
-            "style_dim": style_dim,
-            "style_bank_size": 40,
-            "n_genres": 10,
-            **drop,
-        },  # fmt: skip
-        "diffusion": diffusion,
-        "loss": OmegaConf.to_container(OmegaConf.load(CONFIG_DIR / "loss" / "edge.yaml")),
-        "optimizer": OmegaConf.to_container(OmegaConf.load(CONFIG_DIR / "optimizer" / "adan.yaml")),
-        "ema": {"decay": ema_decay},
-    }
-    model = DanceDiffusion(hparams)
+    spec = RunSpec.from_groups(
+        model=model_name, audio_dim=AUDIO_DIM[model_name], style_dim=style_dim, style_kind="prompt",
+        style_bank_size=40, n_genres=10,
+    )  # fmt: skip
+    model = DanceDiffusion(spec)
     model.style_vectors.normal_()
     model.style_genre_index.copy_(torch.arange(40) % 10)
     return model

@@ -120,20 +120,50 @@ def stitch_windows(windows: torch.Tensor, stride: int) -> torch.Tensor:
 
 
 class ChunkedDenoiser(nn.Module):
-    """Runs a denoiser over a large batch in chunks of ``chunk_size`` items, to bound memory."""
+    """Runs a denoiser over a large batch in chunks of ``chunk_size`` items, to bound memory.
+
+    ``condition(...)`` conditions the inner denoiser chunk by chunk (when it can, else None) for
+    ``forward(x_t, t, cond=...)``.
+    """
 
     def __init__(self, denoiser: nn.Module, chunk_size: int) -> None:
         super().__init__()
         self.denoiser = denoiser
         self.chunk_size = int(chunk_size)
 
-    def forward(self, x_t, t, music=None, style=None, keep_music=None, keep_style=None) -> torch.Tensor:
-        b = x_t.shape[0]
+    def _slices(self, b: int) -> list[slice]:
         if self.chunk_size <= 0 or b <= self.chunk_size:
+            return [slice(0, b)]
+        return [slice(i, i + self.chunk_size) for i in range(0, b, self.chunk_size)]
+
+    def condition(self, music, style, keep_music, keep_style, *, n_frames: int, batch: int) -> list | None:
+        inner = getattr(self.denoiser, "condition", None)
+        if inner is None:
+            return None
+
+        def part(v: torch.Tensor | None, sl: slice) -> torch.Tensor | None:
+            return None if v is None else v[sl]
+
+        return [
+            inner(
+                part(music, sl),
+                part(style, sl),
+                part(keep_music, sl),
+                part(keep_style, sl),
+                n_frames=n_frames,
+                batch=len(range(batch)[sl]),
+            )  # fmt: skip
+            for sl in self._slices(batch)
+        ]
+
+    def forward(self, x_t, t, music=None, style=None, keep_music=None, keep_style=None, *, cond=None):
+        slices = self._slices(x_t.shape[0])
+        if cond is not None:
+            return torch.cat([self.denoiser(x_t[sl], t[sl], cond=c) for sl, c in zip(slices, cond, strict=True)])
+        if len(slices) == 1:
             return self.denoiser(x_t, t, music, style, keep_music, keep_style)
         outs = []
-        for i in range(0, b, self.chunk_size):
-            sl = slice(i, i + self.chunk_size)
+        for sl in slices:
 
             def part(v: torch.Tensor | None, sl: slice = sl) -> torch.Tensor | None:
                 return None if v is None else v[sl]

@@ -23,9 +23,15 @@ predicts the clean motion x0 (B, T, 151).
 
 The EDGE architecture is ``rotary_placement="input", cross_attention_rotary=True, null_music="output"`` (see
 docs/edge.md).
+
+Sampling computes what depends on music and style alone once per run (:meth:`DanceDenoiser.condition`: the
+music encoder, the pooled music vector, the style after dropout, and the cross-attention keys and values of the
+music tokens) and passes it to every step as ``forward(x_t, t, cond=...)``.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import torch
 from torch import nn
@@ -37,6 +43,40 @@ from dgsdp.style.injection import StyleModulation
 
 INJECTIONS = ("modulation", "concat")
 NULL_MUSIC = ("input", "output")
+
+
+@dataclass
+class DenoiserCondition:
+    """What the denoiser derives from music and style alone, computed once per sampling run by
+    :meth:`DanceDenoiser.condition` and reused at every step.
+
+    style: the style after condition dropout (B, ds) or (B, T, ds), or None; pooled: (B, d), the pooled music
+    tokens added to the FiLM vector; keys, values: per decoder layer (B, H, T + 2, Dh), the cross-attention keys
+    and values of the memory, whose last two positions (the time tokens) are filled in at every step (with rotary
+    cross-attention, EDGE, the normalised music tokens ``memory`` instead).
+    """
+
+    style: torch.Tensor | None
+    pooled: torch.Tensor
+    keys: list[torch.Tensor] | None  # None when the cross-attention has rotary positions (EDGE): see ``memory``
+    values: list[torch.Tensor] | None
+    n_frames: int
+    memory: torch.Tensor | None = None  # (B, T, d) normalised music tokens, when keys and values are not cached
+
+    @property
+    def batch_size(self) -> int:
+        return self.pooled.shape[0]
+
+    def rows(self, sl: slice) -> DenoiserCondition:
+        """The condition of rows ``sl`` (views, no copies)."""
+        return DenoiserCondition(
+            None if self.style is None else self.style[sl],
+            self.pooled[sl],
+            None if self.keys is None else [k[sl] for k in self.keys],
+            None if self.values is None else [v[sl] for v in self.values],
+            self.n_frames,
+            None if self.memory is None else self.memory[sl],
+        )
 
 
 class DecoderLayer(nn.Module):
@@ -67,13 +107,15 @@ class DecoderLayer(nn.Module):
     def forward(
         self,
         x: torch.Tensor,
-        memory: torch.Tensor,
+        memory: torch.Tensor | None,
         t_cond: torch.Tensor,
         style: torch.Tensor | None = None,
         modulation: StyleModulation | None = None,
+        memory_kv: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> torch.Tensor:
+        """``memory`` (B, S, d), or its cross-attention keys and values ``memory_kv`` computed earlier."""
         x = x + self.film1(self.drop(self.self_attn(self.norm1(x))), t_cond)
-        x = x + self.film2(self.drop(self.cross_attn(self.norm2(x), memory)), t_cond)
+        x = x + self.film2(self.drop(self.cross_attn(self.norm2(x), memory, kv=memory_kv)), t_cond)
         if modulation is not None and style is not None:
             x = modulation(x, style)
         return x + self.film3(self.drop(self.ff(self.norm3(x))), t_cond)
@@ -174,6 +216,90 @@ class DanceDenoiser(nn.Module):
             return torch.where(keep[:, None, None], style, null[:, None, :])
         return torch.where(keep[:, None], style, null)
 
+    def _keep(self, keep: torch.Tensor | None, b: int, device: torch.device) -> torch.Tensor:
+        return torch.ones(b, dtype=torch.bool, device=device) if keep is None else keep
+
+    def _music(
+        self,
+        music: torch.Tensor | None,
+        style: torch.Tensor | None,
+        keep_music: torch.Tensor,
+        keep_style: torch.Tensor,
+        n: int,
+        *,
+        project_kept_only: bool = False,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Music tokens (B, n, d), the pooled music vector (B, d) and the style after dropout.
+        ``project_kept_only``: run ``music_proj`` on the rows whose music is kept only (one host sync to find
+        them; for once-per-run conditioning)."""
+        b = keep_music.shape[0]
+        null = self.null_music[:, :n].expand(b, -1, -1)
+        at_input = self.null_music_at == "input"
+        if music is None or self.music_proj is None:
+            h_music, keep_music = null, torch.zeros_like(keep_music)
+        else:
+            if music.shape[:2] != (b, n) or music.shape[-1] != self.audio_dim:
+                raise ValueError(f"music features {tuple(music.shape)} do not match ({b}, {n}, {self.audio_dim})")
+            if project_kept_only:
+                rows = keep_music.nonzero().squeeze(1)
+                projected = self.music_proj(music[rows])
+                h_music = null.to(projected.dtype).clone(memory_format=torch.contiguous_format)
+                h_music.index_copy_(0, rows, projected)
+            else:
+                h_music = self.music_proj(music)
+                if at_input:
+                    h_music = torch.where(keep_music[:, None, None], h_music, null)
+        s = self._style(style, keep_style, b)
+        if self.style_concat_proj is not None:
+            h_style = self.style_concat_proj(s)
+            h_music = h_music + (h_style if h_style.ndim == 3 else h_style[:, None, :])
+        tokens = self._run(self.music_encoder, h_music)
+        if at_input:
+            return tokens, self.music_pool(tokens.mean(dim=1)), s
+        # EDGE: null tokens after the encoder and a null pooled vector
+        tokens = torch.where(keep_music[:, None, None], tokens, null)
+        pooled = torch.where(keep_music[:, None], self.music_pool(tokens.mean(dim=1)), self.null_music_hidden)
+        return tokens, pooled, s
+
+    @torch.no_grad()
+    def condition(
+        self,
+        music: torch.Tensor | None,
+        style: torch.Tensor | None,
+        keep_music: torch.Tensor | None = None,
+        keep_style: torch.Tensor | None = None,
+        *,
+        n_frames: int | None = None,
+        batch: int | None = None,
+    ) -> DenoiserCondition:
+        """The conditioning of ``forward(x_t, t, cond=...)`` for music (B, T, Da) and style, computed once for a
+        whole sampling run: music encoder, pooled music, style, and the cross-attention keys and values of the
+        music tokens. The rows' batch and length come from the music (or from ``batch`` / ``n_frames``)."""
+        if music is not None:
+            batch, n_frames = music.shape[0], music.shape[1]
+        if batch is None:
+            batch = keep_music.shape[0] if keep_music is not None else style.shape[0] if style is not None else None
+        if batch is None or n_frames is None:
+            raise ValueError("condition() needs the batch size and the number of frames when there is no music")
+        if n_frames > self.seq_len:
+            raise ValueError(f"sequence of {n_frames} frames is longer than the model's {self.seq_len}; use long-form")
+        device = self.null_music.device
+        keep_music = self._keep(keep_music, batch, device)
+        keep_style = self._keep(keep_style, batch, device)
+        tokens, pooled, s = self._music(music, style, keep_music, keep_style, n_frames, project_kept_only=True)
+        memory = self.memory_norm(tokens)  # LayerNorm is per token: the time tokens are normalised per step
+        if self.layers[0].cross_attn.rotary is not None:  # rotary on cross-attention: keys depend on positions
+            return DenoiserCondition(s, pooled, None, None, n_frames, memory)
+        keys, values = [], []
+        for layer in self.layers:
+            k, v = layer.cross_attn.keys_values(memory)
+            shape = (*k.shape[:2], n_frames + 2, k.shape[-1])
+            k_all, v_all = k.new_empty(shape), v.new_empty(shape)
+            k_all[:, :, :n_frames], v_all[:, :, :n_frames] = k, v
+            keys.append(k_all)
+            values.append(v_all)
+        return DenoiserCondition(s, pooled, keys, values, n_frames)
+
     def forward(
         self,
         x_t: torch.Tensor,
@@ -182,45 +308,54 @@ class DanceDenoiser(nn.Module):
         style: torch.Tensor | None = None,
         keep_music: torch.Tensor | None = None,
         keep_style: torch.Tensor | None = None,
+        *,
+        cond: DenoiserCondition | None = None,
     ) -> torch.Tensor:
         """x_t (B, T, 151), t (B,), music (B, T, Da), style (B, ds) or (B, T, ds); keep_* (B,) bool
-        (False = condition dropped). Returns x0 prediction (B, T, 151)."""
+        (False = condition dropped); or, instead of music, style and keep_*, ``cond`` from :meth:`condition`
+        (sampling). Returns x0 prediction (B, T, 151)."""
         b, n, _ = x_t.shape
         if n > self.seq_len:
             raise ValueError(f"sequence of {n} frames is longer than the model's {self.seq_len}; use long-form")
-        ones = torch.ones(b, dtype=torch.bool, device=x_t.device)
-        keep_music = ones if keep_music is None else keep_music
-        keep_style = ones if keep_style is None else keep_style
-
         t_hidden = self.time_mlp(sinusoidal_embedding(t, self.d_model))
         t_cond = self.time_film(t_hidden)
         t_tokens = self.time_tokens(t_hidden).view(b, 2, self.d_model)
+        if cond is not None:
+            return self._forward_cached(x_t, t_cond, t_tokens, cond)
 
-        null = self.null_music[:, :n].expand(b, -1, -1)
-        at_input = self.null_music_at == "input"
-        if music is None or self.music_proj is None:
-            h_music, keep_music = null, torch.zeros_like(keep_music)
-        else:
-            if music.shape[:2] != (b, n) or music.shape[-1] != self.audio_dim:
-                raise ValueError(f"music features {tuple(music.shape)} do not match ({b}, {n}, {self.audio_dim})")
-            h_music = self.music_proj(music)
-            if at_input:
-                h_music = torch.where(keep_music[:, None, None], h_music, null)
-        s = self._style(style, keep_style, b)
-        if self.style_concat_proj is not None:
-            h_style = self.style_concat_proj(s)
-            h_music = h_music + (h_style if h_style.ndim == 3 else h_style[:, None, :])
-        tokens = self._run(self.music_encoder, h_music)
-        if at_input:
-            t_cond = t_cond + self.music_pool(tokens.mean(dim=1))
-        else:  # EDGE: null tokens after the encoder and a null pooled vector
-            tokens = torch.where(keep_music[:, None, None], tokens, null)
-            hidden = torch.where(keep_music[:, None], self.music_pool(tokens.mean(dim=1)), self.null_music_hidden)
-            t_cond = t_cond + hidden
+        keep_music = self._keep(keep_music, b, x_t.device)
+        keep_style = self._keep(keep_style, b, x_t.device)
+        tokens, pooled, s = self._music(music, style, keep_music, keep_style, n)
+        t_cond = t_cond + pooled
         memory = self.memory_norm(torch.cat((tokens, t_tokens), dim=1))
 
         h = self.input_proj(x_t)
         for i, layer in enumerate(self.layers):
-            mod = None if self.modulations is None else self.modulations[min(i, len(self.modulations) - 1)]
-            h = self._run(layer, h, memory, t_cond, s, mod)
+            h = self._run(layer, h, memory, t_cond, s, self._modulation(i))
+        return self.output_proj(h)
+
+    def _modulation(self, i: int) -> StyleModulation | None:
+        return None if self.modulations is None else self.modulations[min(i, len(self.modulations) - 1)]
+
+    def _forward_cached(
+        self, x_t: torch.Tensor, t_cond: torch.Tensor, t_tokens: torch.Tensor, cond: DenoiserCondition
+    ) -> torch.Tensor:
+        b, n, _ = x_t.shape
+        if (cond.batch_size, cond.n_frames) != (b, n):
+            raise ValueError(
+                f"the conditioning is for {cond.batch_size} rows of {cond.n_frames} frames, not ({b}, {n})"
+            )
+        t_cond = t_cond + cond.pooled
+        t_memory = self.memory_norm(t_tokens)
+        h = self.input_proj(x_t)
+        if cond.keys is None:  # rotary cross-attention: the whole memory per step
+            memory = torch.cat((cond.memory, t_memory), dim=1)
+            for i, layer in enumerate(self.layers):
+                h = layer(h, memory, t_cond, cond.style, self._modulation(i))
+            return self.output_proj(h)
+        for i, layer in enumerate(self.layers):
+            keys, values = cond.keys[i], cond.values[i]
+            # the time tokens' keys and values go into the last two positions of the cached memory
+            keys[:, :, n:], values[:, :, n:] = layer.cross_attn.keys_values(t_memory)
+            h = layer(h, None, t_cond, cond.style, self._modulation(i), memory_kv=(keys, values))
         return self.output_proj(h)

@@ -22,12 +22,25 @@ class RotaryEmbedding(nn.Module):
             raise ValueError(f"rotary embedding needs an even head dimension, got {head_dim}")
         inv_freq = 1.0 / base ** (torch.arange(0, head_dim, 2, dtype=torch.float32) / head_dim)
         self.register_buffer("inv_freq", inv_freq, persistent=False)
+        self._tables: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
+
+    def tables(self, n: int, device: torch.device, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+        """cos and sin (n, Dh/2), built once per length, device and dtype (not during training, where the
+        buffers may still move)."""
+        key = (n, device, dtype)
+        cached = self._tables.get(key)
+        if cached is not None and not self.training:
+            return cached
+        t = torch.arange(n, device=device, dtype=self.inv_freq.dtype)
+        freqs = torch.outer(t, self.inv_freq.to(device))  # (T, Dh/2)
+        tables = (freqs.cos().to(dtype), freqs.sin().to(dtype))
+        if not self.training:
+            self._tables[key] = tables
+        return tables
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """x (..., T, D) -> same shape, rotated by position (pairs of adjacent channels)."""
-        t = torch.arange(x.shape[-2], device=x.device, dtype=self.inv_freq.dtype)
-        freqs = torch.outer(t, self.inv_freq)  # (T, Dh/2)
-        cos, sin = freqs.cos().to(x.dtype), freqs.sin().to(x.dtype)
+        cos, sin = self.tables(x.shape[-2], x.device, x.dtype)
         x1, x2 = x[..., 0::2], x[..., 1::2]
         out = torch.stack((x1 * cos - x2 * sin, x1 * sin + x2 * cos), dim=-1)
         return out.flatten(-2)
@@ -63,10 +76,26 @@ class Attention(nn.Module):
         b, t, d = x.shape
         return x.view(b, t, self.n_heads, d // self.n_heads).transpose(1, 2)
 
-    def forward(self, x: torch.Tensor, memory: torch.Tensor | None = None) -> torch.Tensor:
-        """x (B, T, d) attends to ``memory`` (B, S, d), or to itself if None."""
+    def keys_values(self, src: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Keys and values (B, H, S, Dh) of ``src`` (B, S, d), for attention without rotary positions."""
+        k, v = self.kv(src).chunk(2, dim=-1)
+        return self._heads(k), self._heads(v)
+
+    def forward(
+        self,
+        x: torch.Tensor,
+        memory: torch.Tensor | None = None,
+        kv: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ) -> torch.Tensor:
+        """x (B, T, d) attends to ``memory`` (B, S, d), or to itself if None; or, without rotary, to keys and
+        values ``kv`` computed earlier by :meth:`keys_values`."""
         src = x if memory is None else memory
-        if self.rotary is not None and self.rotary_placement == "input":
+        if kv is not None:
+            if self.rotary is not None:
+                raise ValueError("precomputed keys and values are for attention without rotary positions")
+            q = self._heads(self.q(x))
+            k, v = kv
+        elif self.rotary is not None and self.rotary_placement == "input":
             x_rot = self.rotary(x)
             src_rot = x_rot if memory is None else self.rotary(src)
             w_k, w_v = self.kv.weight.chunk(2, dim=0)
@@ -75,7 +104,7 @@ class Attention(nn.Module):
             k, v = self._heads(F.linear(src_rot, w_k, b_k)), self._heads(F.linear(src, w_v, b_v))
         else:
             q = self._heads(self.q(x))
-            k, v = (self._heads(a) for a in self.kv(src).chunk(2, dim=-1))
+            k, v = self.keys_values(src)
             if self.rotary is not None:
                 q, k = self.rotary(q), self.rotary(k)
         y = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)

@@ -1,5 +1,6 @@
-"""Samplers over a denoiser and a diffusion process: DDPM (every step) and DDIM (N steps, eta), with
-classifier-free guidance on music and style, and editing masks (DGSDP Algorithm 2 / EDGE Eq. 8).
+"""Samplers over a denoiser and a diffusion process: DDPM (every step), DDIM (N steps, eta) and the few-step ODE
+solvers DPM-Solver++(2M) and UniPC (:mod:`dgsdp.sampling.solvers`), with classifier-free guidance on music and
+style, and editing masks (DGSDP Algorithm 2 / EDGE Eq. 8).
 
 Guidance (x are x0 predictions; passes are batched into one forward):
 - models trained with style dropout: ``x_u + w_music (x_m - x_u) + w_style (x_ms - x_m)`` where x_u has neither
@@ -19,10 +20,19 @@ from tqdm.auto import tqdm
 
 from dgsdp.diffusion import GaussianDiffusion
 from dgsdp.sampling.noise import Noise
+from dgsdp.sampling.solvers import SOLVERS, make_solver, solver_timesteps
+
+# Sampler methods by name (``sampling.method``).
+METHODS = ("ddim", "ddpm", *SOLVERS)
+DEFAULT_SOLVER_STEPS = 10
 
 StepCallback = Callable[[torch.Tensor, int], torch.Tensor]
-# Sampler methods by name (``sampling.method``).
-METHODS = ("ddim", "ddpm")
+
+
+def check_method(method: str) -> None:
+    """Raise one clear error for an unknown sampler name."""
+    if method not in METHODS:
+        raise ValueError(f"unknown sampler {method!r}; use one of {', '.join(METHODS)}")
 
 
 @dataclass
@@ -58,34 +68,88 @@ class Condition:
     style: torch.Tensor | None = None
 
 
+Passes = tuple[tuple[bool, bool], ...]
+
+
+class PreparedCondition:
+    """The condition of one sampling run, laid out once per set of guidance passes and reused at every step.
+
+    For each set of passes (keep_music, keep_style) it holds the keep masks and the condition repeated over the
+    passes, and, for denoisers with a ``condition(music, style, keep_music, keep_style)`` method, the denoiser's
+    own conditioning (music encoder output, style, cross-attention keys and values) computed once.
+    """
+
+    def __init__(
+        self, denoiser: Callable, cond: Condition, batch: int, n_frames: int, device: torch.device | str
+    ) -> None:
+        self.denoiser = denoiser
+        self.cond = cond
+        self.batch = batch
+        self.n_frames = n_frames
+        self.device = device
+        self._by_passes: dict[Passes, dict] = {}
+
+    def inputs(self, passes: Passes) -> dict:
+        """Keyword arguments of the denoiser for a batch laid out pass after pass (x_t repeated per pass)."""
+        if passes not in self._by_passes:
+            self._by_passes[passes] = self._prepare(passes)
+        return self._by_passes[passes]
+
+    def _prepare(self, passes: Passes) -> dict:
+        k, b = len(passes), self.batch
+
+        def rep(v: torch.Tensor | None) -> torch.Tensor | None:
+            return None if v is None else v.repeat(k, *([1] * (v.ndim - 1)))
+
+        keep_music = torch.tensor([p[0] for p in passes], device=self.device).repeat_interleave(b)
+        keep_style = torch.tensor([p[1] for p in passes], device=self.device).repeat_interleave(b)
+        music, style = rep(self.cond.music), rep(self.cond.style)
+        condition = getattr(self.denoiser, "condition", None)
+        cached = None
+        if condition is not None:
+            cached = condition(music, style, keep_music, keep_style, n_frames=self.n_frames, batch=k * b)
+        if cached is not None:
+            return {"cond": cached}
+        return {"music": music, "style": style, "keep_music": keep_music, "keep_style": keep_style}
+
+
 class Sampler:
-    """Generates x0 (normalised) from noise with any denoiser ``fn(x_t, t, music, style, keep_music, keep_style)``."""
+    """Generates x0 (normalised) from noise with any denoiser ``fn(x_t, t, music, style, keep_music, keep_style)``.
+
+    Denoisers that also offer ``condition(music, style, keep_music, keep_style)`` and accept its result as
+    ``fn(x_t, t, cond=...)`` get their conditioning computed once per sampling run instead of once per step.
+    """
 
     def __init__(self, denoiser: torch.nn.Module, diffusion: GaussianDiffusion, *, style_guidance: bool) -> None:
         self.denoiser = denoiser
         self.diffusion = diffusion
         self.style_guidance = style_guidance
 
-    def _passes(self, cond: Condition, guidance: Guidance) -> list[tuple[bool, bool]]:
+    def _passes(self, cond: Condition, guidance: Guidance) -> Passes:
         """(keep_music, keep_style) of each pass, the fully conditional pass last."""
         if guidance.music_weight == 1 and (guidance.style_weight == 1 or not self.style_guidance):
-            return [(True, True)]
+            return ((True, True),)
         if self.style_guidance and cond.style is not None:
-            return [(False, False), (True, False), (True, True)]
-        return [(False, True), (True, True)]
+            return ((False, False), (True, False), (True, True))
+        return ((False, True), (True, True))
 
     @torch.no_grad()
-    def predict_x0(self, x_t: torch.Tensor, t: torch.Tensor, cond: Condition, guidance: Guidance) -> torch.Tensor:
+    def predict_x0(
+        self,
+        x_t: torch.Tensor,
+        t: torch.Tensor,
+        cond: Condition,
+        guidance: Guidance,
+        prepared: PreparedCondition | None = None,
+    ) -> torch.Tensor:
+        """The guided, clamped x0 prediction (B, T, 151). ``prepared`` (for ``cond``) reuses the conditioning
+        of earlier steps."""
         passes = self._passes(cond, guidance)
         k = len(passes)
-        b = x_t.shape[0]
-
-        def rep(v: torch.Tensor | None) -> torch.Tensor | None:
-            return None if v is None else v.repeat(k, *([1] * (v.ndim - 1)))
-
-        keep_music = torch.tensor([p[0] for p in passes], device=x_t.device).repeat_interleave(b)
-        keep_style = torch.tensor([p[1] for p in passes], device=x_t.device).repeat_interleave(b)
-        out = self.denoiser(rep(x_t), t.repeat(k), rep(cond.music), rep(cond.style), keep_music, keep_style)
+        if prepared is None:
+            prepared = PreparedCondition(self.denoiser, cond, x_t.shape[0], x_t.shape[1], x_t.device)
+        xs = x_t if k == 1 else x_t.repeat(k, *([1] * (x_t.ndim - 1)))
+        out = self.denoiser(xs, t.repeat(k), **prepared.inputs(passes))
         outs = out.chunk(k)
         if k == 1:
             x0 = outs[0]
@@ -96,12 +160,14 @@ class Sampler:
             x0 = x_u + guidance.music_weight * (x_m - x_u) + guidance.style_weight * (x_ms - x_m)
         return self.diffusion.clamp(x0)
 
-    def timesteps(self, method: str, steps: int | None) -> list[int]:
+    def timesteps(self, method: str, steps: int | None, spacing: str = "lambda") -> list[int]:
+        """The diffusion steps at which the model is evaluated, descending (the last step goes to x0)."""
+        check_method(method)
         if method == "ddpm":
             return list(range(self.diffusion.num_steps - 1, -1, -1))
         if method == "ddim":
             return self.diffusion.ddim_timesteps(steps or 50)
-        raise ValueError(f"unknown sampler {method!r}; use one of {', '.join(METHODS)}")
+        return solver_timesteps(self.diffusion, steps or DEFAULT_SOLVER_STEPS, spacing)
 
     @torch.no_grad()
     def sample(
@@ -119,18 +185,27 @@ class Sampler:
         generator: torch.Generator | Sequence[torch.Generator] | Noise | None = None,
         device: torch.device | str = "cpu",
         progress: bool = False,
+        spacing: str = "lambda",
     ) -> torch.Tensor:
         """Sample x0 of ``shape`` (B, T, 151), normalised.
+
+        method: ``ddim`` (``steps``, ``eta``), ``ddpm`` (every diffusion step), or a few-step solver
+        (``dpmpp_2m``, ``unipc``: deterministic ODE solvers; ``dpmpp_2m_sde``: stochastic; ``eta`` is not used) evaluated at ``steps`` diffusion steps placed by
+        ``spacing`` (``time`` or ``lambda``, see :func:`solver_timesteps`).
 
         generator: one generator for the batch, one per group of rows (see :class:`Noise`), or a Noise; every
         Gaussian draw of the sampler comes from it.
 
-        mask (B or 1, T, 151) with 1 where ``known`` (normalised, same shape as the output) is given: after every
-        step the known region is replaced by ``known`` noised to the new step, and by ``known`` itself at the end.
-        ``step_callback(x, t_next)`` may rewrite the state after every step (long-form consistency uses it).
+        mask (B or 1, T, 151) with 1 where ``known`` (normalised, same shape as the output) is given. DDPM/DDIM:
+        after every step the known region is replaced by ``known`` noised to the new step with fresh noise.
+        ODE solvers: the known region of every x0 prediction is replaced by ``known`` before the update, and that
+        of the state by ``known`` on its own ODE path, alpha_t known + sigma_t z with the initial noise z (the
+        SDE solver pins the start only: its update with x0 = known keeps the known region on a path of that
+        form). All end with ``known`` itself. ``step_callback(x, t_next)`` may rewrite the state after every step
+        (long-form consistency uses it); UniPC also calls it after each correction, ``step_callback(x, t)``.
         """
         guidance = guidance or Guidance()
-        ts = self.timesteps(method, steps)
+        ts = self.timesteps(method, steps, spacing)
         noise = generator if isinstance(generator, Noise) else Noise(generator)
         x = noise.randn(shape, device=device)
         b = shape[0]
@@ -139,25 +214,58 @@ class Sampler:
                 raise ValueError("a mask needs the known motion it refers to")
             mask = mask.to(device=device, dtype=x.dtype)
             known = known.to(device=device, dtype=x.dtype)
+        prepared = PreparedCondition(self.denoiser, cond, b, shape[1], device)
+        solver = make_solver(method, self.diffusion, ts) if method in SOLVERS else None
+        z = x  # the initial noise: the known region's ODE path for the solvers
+
+        def draw(shape: Sequence[int]) -> torch.Tensor:
+            return noise.randn(shape, device=device, dtype=x.dtype)
+
+        def pin_state(x: torch.Tensor, i: int) -> torch.Tensor:
+            """The solver's state at point i with the known region on its ODE path."""
+            if mask is None:
+                return x
+            if i >= len(ts):
+                target = known
+            elif solver.stochastic and i > 0:  # the SDE step with x0 = known keeps the known region on its own path
+                return x
+            else:
+                target = solver.alpha[i] * known + solver.sigma[i] * z
+            return mask * target + (1 - mask) * x
+
+        if solver is not None:
+            x = pin_state(x, 0)
         for i, t_now in enumerate(tqdm(ts, desc="sampling", leave=False, disable=not progress)):
             t_next = ts[i + 1] if i + 1 < len(ts) else -1
             t = torch.full((b,), t_now, device=device, dtype=torch.long)
-            x0 = self.predict_x0(x, t, cond, guidance.at(i, len(ts), t_now, masked=mask is not None))
-            if t_next < 0:
-                x = x0
-            elif method == "ddpm":
-                x = self.diffusion.ddpm_step(x, t, x0, noise=noise.randn(x.shape, device=device, dtype=x.dtype))
+            at = guidance.at(i, len(ts), t_now, masked=mask is not None)
+            x0 = self.predict_x0(x, t, cond, at, prepared)
+            if solver is not None:
+                if mask is not None:
+                    x0 = mask * known + (1 - mask) * x0
+                if i > 0:
+                    corrected = solver.correct(i, x, x0)
+                    if corrected is not x:
+                        x = pin_state(corrected, i)
+                        if step_callback is not None:
+                            x = step_callback(x, t_now)
+                x = pin_state(solver.step(i, x, x0, noise=draw), i + 1)
             else:
-                t_prev = torch.full_like(t, t_next)
-                step_noise = noise.randn(x.shape, device=device, dtype=x.dtype)
-                x = self.diffusion.ddim_step(x, t, t_prev, x0, eta=eta, noise=step_noise)
-            if mask is not None:
                 if t_next < 0:
-                    target = known
+                    x = x0
+                elif method == "ddpm":
+                    x = self.diffusion.ddpm_step(x, t, x0, noise=noise.randn(x.shape, device=device, dtype=x.dtype))
                 else:
-                    known_noise = noise.randn(x.shape, device=device, dtype=x.dtype)
-                    target = self.diffusion.q_sample(known, torch.full_like(t, t_next), known_noise)
-                x = mask * target + (1 - mask) * x
+                    t_prev = torch.full_like(t, t_next)
+                    step_noise = noise.randn(x.shape, device=device, dtype=x.dtype)
+                    x = self.diffusion.ddim_step(x, t, t_prev, x0, eta=eta, noise=step_noise)
+                if mask is not None:
+                    if t_next < 0:
+                        target = known
+                    else:
+                        known_noise = noise.randn(x.shape, device=device, dtype=x.dtype)
+                        target = self.diffusion.q_sample(known, torch.full_like(t, t_next), known_noise)
+                    x = mask * target + (1 - mask) * x
             if step_callback is not None:
                 x = step_callback(x, t_next)
         return x

@@ -1,0 +1,94 @@
+"""Conditioning computed once per sampling run gives the same predictions and samples as the per-step path."""
+
+import pytest
+import torch
+
+from dgsdp.diffusion import GaussianDiffusion
+from dgsdp.generation import ChunkedDenoiser
+from dgsdp.model import DanceDenoiser
+from dgsdp.sampling import Condition, Guidance, Sampler
+
+
+def tiny_denoiser(injection: str, **kwargs) -> DanceDenoiser:
+    torch.manual_seed(0)
+    model = DanceDenoiser(pose_dim=151, seq_len=40, d_model=32, n_layers=2, n_heads=2, ff_dim=64, dropout=0.0,
+                          audio_dim=7, music_encoder_layers=1, style_dim=6, style_injection=injection, **kwargs)  # fmt: skip
+    for p in model.parameters():  # away from the init's zero null style and small null music
+        p.data.add_(0.05 * torch.randn_like(p))
+    return model.eval()
+
+
+@pytest.mark.parametrize("injection", ["modulation", "concat"])
+@pytest.mark.parametrize("per_frame_style", [False, True])
+def test_cached_forward_equals_the_plain_forward(injection, per_frame_style):
+    model = tiny_denoiser(injection, modulation_shared=False)
+    b, n = 6, 33
+    x, t = torch.randn(b, n, 151), torch.tensor([999, 500, 3, 0, 250, 999])
+    music = torch.randn(b, n, 7)
+    style = torch.randn(b, n, 6) if per_frame_style else torch.randn(b, 6)
+    keep_music = torch.tensor([True, False, True, False, True, True])
+    keep_style = torch.tensor([True, True, False, False, True, False])
+    plain = model(x, t, music, style, keep_music, keep_style)
+    cond = model.condition(music, style, keep_music, keep_style)
+    for _ in range(2):  # reused across steps, with other x and t
+        torch.testing.assert_close(model(x, t, cond=cond), plain, atol=2e-6, rtol=0)
+        x, t = torch.randn(b, n, 151), torch.randint(0, 1000, (b,))
+        plain = model(x, t, music, style, keep_music, keep_style)
+    # the dropped rows' music does not matter
+    other = music.clone()
+    other[~keep_music] = 1e3
+    torch.testing.assert_close(model(x, t, cond=model.condition(other, style, keep_music, keep_style)), plain,
+                               atol=2e-6, rtol=0)  # fmt: skip
+    with pytest.raises(ValueError, match="conditioning is for"):
+        model(x[:2], t[:2], cond=cond)
+
+
+def test_condition_without_music_or_style():
+    model = tiny_denoiser("modulation")
+    x, t = torch.randn(3, 20, 151), torch.tensor([5, 600, 999])
+    plain = model(x, t)
+    torch.testing.assert_close(model(x, t, cond=model.condition(None, None, n_frames=20, batch=3)), plain,
+                               atol=2e-6, rtol=0)  # fmt: skip
+    with pytest.raises(ValueError, match="number of frames"):
+        model.condition(None, None)
+
+
+class PlainOnly(torch.nn.Module):
+    """The same denoiser, seen through the per-step interface only (no ``condition``)."""
+
+    def __init__(self, inner: torch.nn.Module) -> None:
+        super().__init__()
+        self.inner = inner
+
+    def forward(self, x_t, t, music=None, style=None, keep_music=None, keep_style=None):
+        return self.inner(x_t, t, music, style, keep_music, keep_style)
+
+
+@pytest.mark.parametrize(
+    ("method", "style_guidance", "chunk_size"),
+    [("ddim", False, 0), ("ddim", True, 4), ("dpmpp_2m", True, 0), ("unipc", False, 4), ("unipc", True, 0)],
+)
+def test_cached_sampling_equals_the_per_step_path(method, style_guidance, chunk_size):
+    model = tiny_denoiser("modulation")
+    diffusion = GaussianDiffusion()
+    cached = ChunkedDenoiser(model, chunk_size) if chunk_size else model
+    plain = ChunkedDenoiser(PlainOnly(model), chunk_size) if chunk_size else PlainOnly(model)
+    cond = Condition(torch.randn(5, 40, 7), torch.randn(5, 6))
+    # ramp and edit cap change the guidance passes between steps
+    guidance = Guidance(2.5, 1.5, ramp_fraction=0.5, edit_cap_below_t=400)
+    mask = torch.zeros(1, 40, 151)
+    mask[:, :10] = 1
+    outs = [
+        Sampler(d, diffusion, style_guidance=style_guidance).sample(
+            (5, 40, 151),
+            cond,
+            method=method,
+            steps=6,
+            guidance=guidance,
+            mask=mask,
+            known=torch.zeros(5, 40, 151),
+            generator=torch.Generator().manual_seed(0),
+        )  # fmt: skip
+        for d in (cached, plain)
+    ]
+    torch.testing.assert_close(outs[0], outs[1], atol=1e-5, rtol=0)
