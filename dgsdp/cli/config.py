@@ -22,10 +22,14 @@ if not OmegaConf.has_resolver("dgsdp_precision"):  # conf/trainer/ddp.yaml: bf16
     OmegaConf.register_new_resolver("dgsdp_precision", precision_for)
 
 
+_composed: list[Any] = [None]  # the HydraConfig that compose_config set last (not a running app's)
+
+
 @contextlib.contextmanager
 def _hydra_runtime(cfg: DictConfig) -> Iterator[None]:
-    """Make ``${hydra:...}`` resolvable against ``cfg.hydra`` for the duration of the block; a running Hydra app's
-    own config is put back afterwards."""
+    """Make ``${hydra:...}`` resolvable against ``cfg.hydra`` for the duration of the block. A running Hydra app's
+    own config is put back afterwards; outside an app (a script, a notebook, a test) the composed run's values stay
+    readable, as they would be in the app."""
     from hydra.core.hydra_config import HydraConfig
 
     saved = HydraConfig.instance().cfg
@@ -33,9 +37,10 @@ def _hydra_runtime(cfg: DictConfig) -> Iterator[None]:
     try:
         yield
     finally:
-        if saved is not None:  # inside a running Hydra app: its own config again
+        if saved is not None and saved is not _composed[0]:  # inside a running Hydra app: its own config again
             HydraConfig.instance().cfg = saved
-        # else (a script, a notebook, a test) the composed run's values stay readable, as in a Hydra app
+        else:
+            _composed[0] = HydraConfig.instance().cfg
 
 
 def compose_config(
