@@ -9,7 +9,7 @@ from dgsdp.editing.masks import build_mask
 from dgsdp.evaluation.clips import Clip, clip_seed
 from dgsdp.evaluation.features import MODEL_FPS, motion_to_joints
 from dgsdp.evaluation.protocols import ProtocolSpec, Variant
-from dgsdp.generation.pipeline import DanceGenerator, DanceRequest
+from dgsdp.generation import DanceGenerator, DanceRequest
 from dgsdp.sampling import SamplingSettings
 
 

@@ -2,7 +2,7 @@
 
 from dgsdp.generation.longform import (
     ChunkedDenoiser,
-    DanceItem,
+    DanceRequest,
     WindowLayout,
     cut_windows,
     sample_items,
@@ -12,7 +12,6 @@ from dgsdp.generation.longform import (
 )
 from dgsdp.generation.pipeline import (
     DanceGenerator,
-    DanceRequest,
     EditSettings,
     StylePlan,
     find_songs,
@@ -24,7 +23,6 @@ from dgsdp.sampling import SamplingSettings
 __all__ = [
     "ChunkedDenoiser",
     "DanceGenerator",
-    "DanceItem",
     "DanceRequest",
     "EditSettings",
     "SamplingSettings",

@@ -173,10 +173,11 @@ class ChunkedDenoiser(nn.Module):
 
 
 @dataclass
-class DanceItem:
-    """One dance to sample: ``n_frames`` at 30 FPS, its music (n_frames, Da) or None, its style (ds,), per frame
-    (n_frames, ds) or None, an optional editing mask and the given motion (n_frames, 151, unnormalised), how many
-    samples, and the generator its noise comes from (its own: the result does not depend on the batch)."""
+class DanceRequest:
+    """One dance to make: ``n_frames`` at 30 FPS, music features (n_frames, Da) or None, style (ds,), per frame
+    (n_frames, ds) or None, an optional editing mask with the given motion (both (n_frames, 151), unnormalised),
+    the number of samples, and where its noise comes from: a seed (or a generator to draw from) of its own, so the
+    same request with the same seed gives the same dance, alone or in a batch; None uses the global RNG."""
 
     n_frames: int
     music: torch.Tensor | None = None
@@ -184,13 +185,18 @@ class DanceItem:
     mask: torch.Tensor | None = None
     known: torch.Tensor | None = None
     num_samples: int = 1
-    generator: torch.Generator | None = None
+    seed: int | torch.Generator | None = 0
+
+    def generator(self, device: torch.device) -> torch.Generator | None:
+        if self.seed is None or isinstance(self.seed, torch.Generator):
+            return self.seed
+        return torch.Generator(device=device).manual_seed(int(self.seed))
 
 
 def sample_items(
     sampler: Sampler,
     normalizer: MinMaxNormalizer,
-    items: list[DanceItem],
+    items: list[DanceRequest],
     *,
     window: int = 150,
     stride: int = 75,
@@ -207,7 +213,7 @@ def sample_items(
     Each dance is cut into windows of ``window`` frames ``stride`` apart (one padded window when shorter); all
     windows of all items are denoised together (``chunk_size`` > 0 bounds the denoiser's batch), neighbours of
     the same dance agree on their overlap after every step, and the windows are stitched. The given channels of
-    an edited dance equal its ``known`` motion. Items with a generator draw their noise from it alone."""
+    an edited dance equal its ``known`` motion. A request with a seed draws its noise from it alone."""
     if not items:
         return []
     device = torch.device(device)
@@ -257,12 +263,13 @@ def sample_items(
         ]
         return torch.cat(parts)
 
-    if all(it.generator is None for it in items):
+    generators = [it.generator(device) for it in items]
+    if all(g is None for g in generators):
         noise = Noise(None)
-    elif any(it.generator is None for it in items):
-        raise ValueError("give every dance of a batch its own generator, or none of them")
+    elif any(g is None for g in generators):
+        raise ValueError("give every dance of a batch its own seed, or none of them")
     else:
-        noise = Noise([it.generator for it in items], rows=rows)
+        noise = Noise(generators, rows=rows)
     denoiser = ChunkedDenoiser(sampler.denoiser, chunk_size) if chunk_size > 0 else sampler.denoiser
     run = Sampler(denoiser, sampler.diffusion, style_guidance=sampler.style_guidance)
     x = run.sample(
@@ -318,7 +325,7 @@ def sample_long(
     mask / known: (n_frames, 151) editing mask (1 = given) and the given unnormalised motion."""
     if mask is not None and known is None:
         raise ValueError("a mask needs the known motion it refers to")
-    item = DanceItem(n_frames, music, style, mask, known, num_samples, generator)
+    item = DanceRequest(n_frames, music, style, mask, known, num_samples, generator)
     return sample_items(
         sampler, normalizer, [item], window=window, stride=stride, method=method, steps=steps, eta=eta,
         guidance=guidance, chunk_size=chunk_size, device=device, progress=progress,

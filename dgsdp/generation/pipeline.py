@@ -22,7 +22,7 @@ import torch
 from dgsdp.audio import AudioEncoder, FeatureCache, audio_duration_seconds
 from dgsdp.editing import build_mask, check_task, place_known
 from dgsdp.errors import AudioError, ConfigError
-from dgsdp.generation.longform import DanceItem, sample_items
+from dgsdp.generation.longform import DanceRequest, sample_items
 from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styles
 from dgsdp.motion import POSE_DIM, pose_to_joints, unpack_pose
 from dgsdp.sampling import SamplingSettings
@@ -33,22 +33,6 @@ from dgsdp.utils.io import atomic_path
 log = logging.getLogger(__name__)
 
 AUDIO_SUFFIXES = (".wav", ".mp3", ".ogg", ".flac")
-
-
-@dataclass
-class DanceRequest:
-    """One dance to make: ``n_frames`` at 30 FPS, music features (n_frames, Da) or None, style (ds,), per frame
-    (n_frames, ds) or None, an optional editing mask with the given motion (both (n_frames, 151)), the number of
-    samples, and the seed of its noise (the same request with the same seed gives the same dance, alone or in a
-    batch)."""
-
-    n_frames: int
-    music: torch.Tensor | None = None
-    style: torch.Tensor | None = None
-    mask: torch.Tensor | None = None
-    known: torch.Tensor | None = None
-    num_samples: int = 1
-    seed: int | None = 0
 
 
 @dataclass
@@ -271,7 +255,7 @@ class DanceGenerator:
         out: list[torch.Tensor | None] = [None] * len(requests)
         autocast = torch.autocast(self.device.type, dtype=torch.bfloat16) if sampling.bf16 else contextlib.nullcontext()
         for batch in batches:
-            items = [self._item(requests[i]) for i in batch]
+            items = [requests[i] for i in batch]
             guidance = sampling.guidance_for(long=requests[batch[0]].n_frames > window)
             with autocast:
                 motions = sample_items(
@@ -282,10 +266,6 @@ class DanceGenerator:
             for i, motion in zip(batch, motions):
                 out[i] = motion.float().cpu()
         return out  # type: ignore[return-value]
-
-    def _item(self, r: DanceRequest) -> DanceItem:
-        generator = None if r.seed is None else torch.Generator(device=self.device).manual_seed(int(r.seed))
-        return DanceItem(r.n_frames, r.music, r.style, r.mask, r.known, r.num_samples, generator)
 
     def generate(
         self,
