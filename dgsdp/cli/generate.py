@@ -133,20 +133,10 @@ def generate(cfg: DictConfig) -> GenerationReport:
             stem += "_"
         used.add(stem)
         try:
-            music, n_frames = generator.music_features(song, cfg.seconds)
-            style = generator.style_frames(plan, n_frames, float(cfg.schedule_blend_seconds))
-            mask, known = generator.edit_inputs(edit, n_frames)
-            motions = generator.generate(
-                n_frames,
-                music=music,
-                style=style,
-                mask=mask,
-                known=known,
-                num_samples=num_samples,
-                sampling=sampling,
-                seed=int(cfg.seed),
-                progress=bool(cfg.progress),
-            )
+            motions = generator.dance_to_song(
+                song, plan, edit=edit, seconds=cfg.seconds, blend_seconds=float(cfg.schedule_blend_seconds),
+                num_samples=num_samples, sampling=sampling, seed=int(cfg.seed), progress=bool(cfg.progress),
+            )  # fmt: skip
             files: list[Path] = []
             for k, motion in enumerate(motions):
                 name = stem if num_samples == 1 else f"{stem}_sample{k}"

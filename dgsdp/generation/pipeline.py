@@ -267,6 +267,29 @@ class DanceGenerator:
                 out[i] = motion.float().cpu()
         return out  # type: ignore[return-value]
 
+    def dance_to_song(
+        self,
+        song: Path,
+        plan: StylePlan,
+        *,
+        edit: EditSettings | None = None,
+        seconds: float | None = None,
+        blend_seconds: float = 2.0,
+        num_samples: int = 1,
+        sampling: SamplingSettings | None = None,
+        seed: int | None = 0,
+        progress: bool = False,
+    ) -> torch.Tensor:
+        """Motions (num_samples, T, 151) danced to a whole song (or its first ``seconds``) in a resolved style,
+        with an optional editing task: music features, style per frame, editing mask, then :meth:`generate`."""
+        music, n_frames = self.music_features(song, seconds)
+        style = self.style_frames(plan, n_frames, blend_seconds)
+        mask, known = self.edit_inputs(edit or EditSettings(), n_frames)
+        return self.generate(
+            n_frames, music=music, style=style, mask=mask, known=known, num_samples=num_samples,
+            sampling=sampling, seed=seed, progress=progress,
+        )  # fmt: skip
+
     def generate(
         self,
         n_frames: int,

@@ -34,7 +34,7 @@ EDITS = ("none", "upper_body", "lower_body", "keyframes", "continue", "range")
 
 def glb_available() -> bool:
     """Whether this install can write GLB files (``write_motion(..., formats=[..., "glb"])``)."""
-    return any("glb" in name.lower() or "gltf" in name.lower() for name in dir(dgsdp.export))
+    return "glb" in dgsdp.export.MOTION_FORMATS
 
 
 def output_formats(video: bool = True) -> list[str]:
@@ -131,20 +131,12 @@ class Engine:
             guidance=GuidanceSettings(music=float(request.music_weight), style=float(request.style_weight)),
         )
         plan = gen.resolve_style(request.style)
-        music, n_frames = gen.music_features(request.song)
-        style = gen.style_frames(plan, n_frames, float(request.blend_seconds))
+        _, n_frames = gen.music_features(request.song)  # the edit's frames depend on the song's length
         edit = edit_settings(request.edit, n_frames, gen.fps)
-        mask, known = gen.edit_inputs(edit, n_frames)
-        motion = gen.generate(
-            n_frames,
-            music=music,
-            style=style,
-            mask=mask,
-            known=known,
-            sampling=sampling,
-            seed=int(request.seed),
-            progress=progress,
-        )[0]
+        motion = gen.dance_to_song(
+            request.song, plan, edit=edit, blend_seconds=float(request.blend_seconds), sampling=sampling,
+            seed=int(request.seed), progress=progress,
+        )[0]  # fmt: skip
         title = f"{request.song.stem} | {plan.text}" if plan.text else request.song.stem
         files = write_motion(
             motion,
