@@ -123,7 +123,7 @@ def test_installed_wheel_trains_and_generates_from_any_folder(wheel, tmp_path, r
 
     song = sorted((work / "data" / "synthetic" / "wavs").glob("*.wav"))[0]
     out = _run(
-        ["dgsdp-generate", f"checkpoint={checkpoint}", f"music={song}", "style=krump", "steps=2", "seconds=3",
+        ["dgsdp-generate", f"checkpoint={checkpoint}", f"music={song}", "style=krump", "sampling.steps=2", "seconds=3",
          "device=cpu", "formats=[npy,pkl]", "progress=false"],
         work, env,
     )  # fmt: skip
