@@ -25,6 +25,7 @@ from dgsdp.motion import (
     forward_kinematics,
     matrix_to_axis_angle,
     points_z_up_to_y_up,
+    rest_offsets,
     root_rotation_z_up_to_y_up,
 )
 from dgsdp.utils.io import atomic_path
@@ -49,6 +50,27 @@ def as_motion(
     if not (torch.isfinite(rot).all() and torch.isfinite(trans).all()):
         raise DataError("the motion to export has NaN or infinite values; check the generated sequence")
     return rot, trans
+
+
+def skeleton_motion(
+    rotmats: torch.Tensor | np.ndarray,
+    root_trans: torch.Tensor | np.ndarray,
+    fps: float,
+    offsets: torch.Tensor | np.ndarray | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
+    """:func:`as_motion` plus the frame rate and the skeleton's rest offsets (24, 3) metres (default SMPL's), checked
+    for the exporters that write a skeleton; the root's offset is 0 (its position is the translation itself, as in
+    our forward kinematics)."""
+    if not fps > 0:
+        raise DataError(f"fps must be positive, got {fps}")
+    rot, trans = as_motion(rotmats, root_trans)
+    if offsets is None:
+        offsets = rest_offsets(dtype=torch.float64)
+    offs = torch.as_tensor(offsets).detach().to("cpu", torch.float64).numpy().copy()
+    if offs.shape != (NUM_JOINTS, 3) or not np.isfinite(offs).all():
+        raise DataError(f"offsets must be a finite (24, 3) array in metres, got shape {offs.shape}")
+    offs[0] = 0.0
+    return rot, trans, offs
 
 
 def motion_to_aistpp(

@@ -27,13 +27,12 @@ import numpy as np
 import torch
 
 from dgsdp.errors import DataError
-from dgsdp.export.aistpp_pkl import as_motion
+from dgsdp.export.aistpp_pkl import skeleton_motion
 from dgsdp.motion import (
     JOINT_NAMES,
     NUM_JOINTS,
     PARENTS,
     points_z_up_to_y_up,
-    rest_offsets,
     root_rotation_z_up_to_y_up,
 )
 from dgsdp.utils.io import atomic_write_text
@@ -108,15 +107,7 @@ def bvh_text(
     docstring for axes, units and channels. ``offsets``: (24, 3) rest offsets in metres, y-up (default SMPL's)."""
     if units not in UNIT_SCALE:
         raise DataError(f"BVH units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
-    if not fps > 0:
-        raise DataError(f"fps must be positive, got {fps}")
-    rot, trans = as_motion(rotmats, root_trans)
-    if offsets is None:
-        offsets = rest_offsets(dtype=torch.float64)
-    offs = torch.as_tensor(offsets).detach().to("cpu", torch.float64).numpy().copy()
-    if offs.shape != (NUM_JOINTS, 3) or not np.isfinite(offs).all():
-        raise DataError(f"offsets must be a finite (24, 3) array in metres, got shape {offs.shape}")
-    offs[0] = 0.0  # the root position is the translation itself, as in our forward kinematics
+    rot, trans, offs = skeleton_motion(rotmats, root_trans, fps, offsets)
     scale = UNIT_SCALE[units]
 
     rot = rot.clone()

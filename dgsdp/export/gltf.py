@@ -30,15 +30,13 @@ import numpy as np
 import pygltflib as gl
 import torch
 
-from dgsdp.errors import DataError
-from dgsdp.export.aistpp_pkl import as_motion
+from dgsdp.export.aistpp_pkl import skeleton_motion
 from dgsdp.motion import (
     JOINT_NAMES,
     NUM_JOINTS,
     PARENTS,
     matrix_to_quaternion,
     points_z_up_to_y_up,
-    rest_offsets,
     root_rotation_z_up_to_y_up,
 )
 from dgsdp.utils.io import atomic_write_bytes
@@ -199,15 +197,7 @@ def gltf_document(
 ) -> gl.GLTF2:
     """The glTF document (binary blob attached) of a z-up motion: rotmats (T, 24, 3, 3) local rotations,
     root_trans (T, 3) metres, at ``fps``; see the module docstring for its contents."""
-    if not fps > 0:
-        raise DataError(f"fps must be positive, got {fps}")
-    rot, trans = as_motion(rotmats, root_trans)
-    if offsets is None:
-        offsets = rest_offsets(dtype=torch.float64)
-    offs = torch.as_tensor(offsets).detach().to("cpu", torch.float64).numpy().copy()
-    if offs.shape != (NUM_JOINTS, 3) or not np.isfinite(offs).all():
-        raise DataError(f"offsets must be a finite (24, 3) array in metres, got shape {offs.shape}")
-    offs[0] = 0.0  # the root position is the translation itself, as in our forward kinematics
+    rot, trans, offs = skeleton_motion(rotmats, root_trans, fps, offsets)
     n_frames = rot.shape[0]
 
     rot = rot.clone()
