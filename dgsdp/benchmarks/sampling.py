@@ -26,10 +26,10 @@ import torch
 
 from dgsdp.benchmarks.generation import SIZES, build_model
 from dgsdp.generation.longform import sample_long
-from dgsdp.sampling import Guidance, check_method
+from dgsdp.sampling import Guidance, SamplingSettings, check_method
 
 FPS = 30
-DEFAULT_METHOD, DEFAULT_STEPS = "dpmpp_2m", 10
+DEFAULT_METHOD, DEFAULT_STEPS = SamplingSettings.method, SamplingSettings.steps  # generate.py's default
 
 
 class PerStepDenoiser(torch.nn.Module):

@@ -36,7 +36,7 @@ class GaussianDiffusion(nn.Module):
         schedule: str = "cosine",
         cosine_s: float = 0.008,
         max_beta: float = 0.999,
-        clip_x0: bool = True,
+        clip_x0: bool | float = 1.5,
     ) -> None:
         super().__init__()
         if schedule == "cosine":
@@ -46,7 +46,15 @@ class GaussianDiffusion(nn.Module):
         else:
             raise ValueError(f"unknown noise schedule {schedule!r}; use 'cosine' or 'linear'")
         self.num_steps = num_steps
-        self.clip_x0 = clip_x0
+        # x0 predictions are clamped to [-bound, bound] (normalised units; the training data spans [-1, 1]) while
+        # sampling: True is EDGE's bound 1 (it pins every channel inside the training range), a larger bound lets
+        # a dance leave that range a little (bounce, deeper levels) and still stops runaway guidance.
+        if isinstance(clip_x0, bool):
+            self.x0_bound = 1.0 if clip_x0 else None
+        elif float(clip_x0) > 0:
+            self.x0_bound = float(clip_x0)
+        else:
+            raise ValueError(f"clip_x0 must be true, false or a positive bound, got {clip_x0!r}")
         alphas = 1 - betas
         alpha_bar = torch.cumprod(alphas, dim=0)
         alpha_bar_prev = torch.cat([torch.ones(1, dtype=torch.float64), alpha_bar[:-1]])
@@ -86,7 +94,7 @@ class GaussianDiffusion(nn.Module):
         )
 
     def clamp(self, x0: torch.Tensor) -> torch.Tensor:
-        return x0.clamp(-1, 1) if self.clip_x0 else x0
+        return x0 if self.x0_bound is None else x0.clamp(-self.x0_bound, self.x0_bound)
 
     def ddpm_step(
         self,

@@ -85,6 +85,35 @@ def share_overlaps(x: torch.Tensor, n_windows: int, stride: int) -> torch.Tensor
     return w.reshape(x.shape)
 
 
+def overlap_weights(window: int, dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
+    """Per-frame weights (window,) of a window in :func:`fuse_overlaps`: sin^2(pi (f + 0.5) / window), rising
+    from the window's ends to 1 in its middle. Two windows half a window apart sum to exactly 1 on every frame."""
+    f = torch.arange(window, dtype=torch.float64, device=device)
+    return torch.sin(math.pi * (f + 0.5) / window).pow(2).to(dtype)
+
+
+def fuse_overlaps(x: torch.Tensor, n_windows: int, stride: int) -> torch.Tensor:
+    """Make overlapping windows agree: every frame becomes the weighted mean of the windows that cover it.
+
+    x: (S * n_windows, window, C), the windows of S samples one after the other. The weights
+    (:func:`overlap_weights`) fall towards each window's ends, so no window's edge is a hard cut in the fused
+    motion (a frame covered by one window keeps its value). Returns a new tensor.
+    """
+    if n_windows < 2:
+        return x
+    s, length = x.shape[0] // n_windows, x.shape[1]
+    w = x.reshape(s, n_windows, length, -1)
+    weight = overlap_weights(length, x.dtype, x.device)
+    total = length + stride * (n_windows - 1)
+    acc = x.new_zeros(s, total, w.shape[-1])
+    norm = x.new_zeros(total)
+    for i in range(n_windows):
+        acc[:, i * stride : i * stride + length] += weight[:, None] * w[:, i]
+        norm[i * stride : i * stride + length] += weight
+    fused = acc / norm[:, None]
+    return torch.stack([fused[:, i * stride : i * stride + length] for i in range(n_windows)], dim=1).reshape(x.shape)
+
+
 def stitch_windows(windows: torch.Tensor, stride: int) -> torch.Tensor:
     """Stitch unnormalised windows (n, L, 151) into one motion (L + stride * (n - 1), 151).
 
@@ -255,12 +284,15 @@ def sample_items(
     for r in rows:
         bounds.append(bounds[-1] + r)
 
+    import os
+
+    fuse = os.environ.get("DGSDP_LONGFORM", "fuse") == "fuse"
+
     def consistency(x: torch.Tensor, t_next: int) -> torch.Tensor:
-        if t_next <= 0:
+        if not fuse and t_next <= 0:
             return x
-        parts = [
-            share_overlaps(x[bounds[i] : bounds[i + 1]], layout.n_windows, stride) for i, layout in enumerate(layouts)
-        ]
+        share = fuse_overlaps if fuse else share_overlaps
+        parts = [share(x[bounds[i] : bounds[i + 1]], layout.n_windows, stride) for i, layout in enumerate(layouts)]
         return torch.cat(parts)
 
     generators = [it.generator(device) for it in items]
@@ -292,8 +324,8 @@ def sample_items(
         part = motion[bounds[i] : bounds[i + 1]].reshape(it.num_samples, layout.n_windows, window, POSE_DIM)
         dances = torch.stack([stitch_windows(part[s], stride)[: it.n_frames] for s in range(it.num_samples)])
         if any_mask and given[i] is not None:
-            # The given channels exactly as given (stitching blends rotations through matrices, and the
-            # normaliser clips values outside the training range).
+            # The given channels exactly as given (stitching blends rotations through matrices, and sampling
+            # clamps x0 to its bound in normalised units).
             dances = torch.where(it.mask.to(device).bool(), given[i], dances)
         out.append(dances)
     return out

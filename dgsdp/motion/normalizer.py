@@ -1,4 +1,4 @@
-"""Per-channel min-max normalisation to [-1, 1] (EDGE's), with plain-tensor state for checkpoints."""
+"""Per-channel min-max normalisation to [-1, 1] (EDGE's, without its clipping), with plain-tensor state."""
 
 from __future__ import annotations
 
@@ -7,15 +7,16 @@ from torch import nn
 
 
 class MinMaxNormalizer(nn.Module):
-    """Scales each channel from [min, max] of the training data to [-1, 1], clipping outside values.
+    """Scales each channel from [min, max] of the training data to [-1, 1]; values outside stay outside.
 
-    Channels with zero range get range 1 (so binary contacts 0/1 become -1/+1 and constant channels map to -1).
+    EDGE clips to [-1, 1] on the way back, which pins any value past the training range (a deeper level, a higher
+    bounce) at its edge; here both directions are plain affine maps, exact inverses of each other. Channels with
+    zero range get range 1 (so binary contacts 0/1 become -1/+1 and constant channels map to -1).
     State: buffers ``data_min`` and ``data_max`` (C,), saved with the model's state dict.
     """
 
-    def __init__(self, num_channels: int, clip: bool = True) -> None:
+    def __init__(self, num_channels: int) -> None:
         super().__init__()
-        self.clip = clip
         self.register_buffer("data_min", torch.zeros(num_channels))
         self.register_buffer("data_max", torch.ones(num_channels))
         self.register_buffer("fitted", torch.tensor(False))
@@ -34,12 +35,9 @@ class MinMaxNormalizer(nn.Module):
         return torch.where(rng > 0, rng, torch.ones_like(rng))
 
     def normalize(self, x: torch.Tensor) -> torch.Tensor:
-        y = (x - self.data_min) / self._range() * 2 - 1
-        return y.clamp(-1, 1) if self.clip else y
+        return (x - self.data_min) / self._range() * 2 - 1
 
     def unnormalize(self, y: torch.Tensor) -> torch.Tensor:
-        if self.clip:
-            y = y.clamp(-1, 1)
         return (y + 1) / 2 * self._range() + self.data_min
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:

@@ -29,8 +29,8 @@ class SamplingSettings:
     far apart. chunk_size > 0: at most this many windows per denoiser call (memory). batch_size: independent
     dances sampled together. bf16: autocast on CUDA."""
 
-    method: str = "ddim"
-    steps: int = 50
+    method: str = "dpmpp_2m"  # the default of conf/sampling (dpmpp_2m.yaml); docs/sampling.md says why
+    steps: int = 10
     eta: float = 1.0
     guidance: GuidanceSettings = field(default_factory=GuidanceSettings)
     window_frames: int | None = None

@@ -30,7 +30,7 @@ import soundfile as sf  # noqa: E402
 
 from dgsdp.errors import AudioError, ConfigError, DgsdpError  # noqa: E402
 from dgsdp.generation import parse_schedule  # noqa: E402
-from dgsdp.sampling import METHODS  # noqa: E402
+from dgsdp.sampling import METHODS, GuidanceSettings, SamplingSettings  # noqa: E402
 from dgsdp.studio import engine as eng  # noqa: E402
 from dgsdp.studio.viewer import CSS_TEMPLATE, HTML_TEMPLATE, JS_ON_LOAD, viewer_value, write_joints_json  # noqa: E402
 from dgsdp.style import AISTPP_GENRES  # noqa: E402
@@ -61,7 +61,7 @@ class StudioConfig:
     max_song_seconds: float = 300.0
     device: str = "auto"
     queue_size: int = 16
-    default_steps: int = 50
+    default_steps: int = SamplingSettings.steps
 
 
 def find_checkpoints(outputs: str | Path) -> list[str]:
@@ -349,12 +349,12 @@ def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[g
                     schedule_preview = gr.Textbox(label="Schedule", interactive=False, elem_id="schedule")
                     timeline_bar = gr.HTML("", elem_id="timeline-bar")
                 with gr.Accordion("Sampling", open=False):
-                    music_w = gr.Slider(0, 5, value=2.0, step=0.1, label="Music guidance")
+                    music_w = gr.Slider(0, 5, value=GuidanceSettings.music, step=0.1, label="Music guidance")
                     style_w = gr.Slider(
                         0, 5, value=1.0, step=0.1, label="Style guidance (models trained with style dropout)"
                     )
-                    sampler = gr.Radio(list(METHODS), value="ddim", label="Sampler")
-                    steps = gr.Slider(1, 1000, value=config.default_steps, step=1, label="Steps (DDIM)",
+                    sampler = gr.Radio(list(METHODS), value=SamplingSettings.method, label="Sampler")
+                    steps = gr.Slider(1, 1000, value=config.default_steps, step=1, label="Steps",
                                       elem_id="steps")  # fmt: skip
                     seed = gr.Number(value=0, precision=0, label="Seed")
                     video = gr.Checkbox(value=True, label="Render an mp4 video")
@@ -433,7 +433,7 @@ def parse_args(argv: list[str] | None = None) -> StudioConfig:
     p.add_argument("--max-seconds", type=float, default=defaults.max_song_seconds, help="longest song (seconds)")
     p.add_argument("--device", default=defaults.device, help="auto, cpu or cuda")
     p.add_argument("--queue-size", type=int, default=defaults.queue_size, help="requests that may wait in the queue")
-    p.add_argument("--steps", type=int, default=defaults.default_steps, help="default number of DDIM steps")
+    p.add_argument("--steps", type=int, default=defaults.default_steps, help="default number of sampling steps")
     a = p.parse_args(argv)
     return StudioConfig(
         checkpoint=a.checkpoint, host=a.host, port=a.port, outputs=a.outputs, work_dir=a.work_dir,

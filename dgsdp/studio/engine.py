@@ -66,10 +66,10 @@ class DanceRequest:
     checkpoint: str
     song: Path
     style: str | None
-    music_weight: float = 2.0
-    style_weight: float = 1.0
-    sampler: str = "ddim"
-    steps: int = 50
+    music_weight: float = GuidanceSettings.music
+    style_weight: float = GuidanceSettings.style
+    sampler: str = SamplingSettings.method
+    steps: int = SamplingSettings.steps
     seed: int = 0
     blend_seconds: float = 2.0
     edit: Edit | None = None

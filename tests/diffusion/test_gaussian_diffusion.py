@@ -199,3 +199,16 @@ def test_ddim_timesteps_span_the_whole_schedule(n):
     gaps = {a - b for a, b in zip(steps, steps[1:])}
     assert gaps <= {1000 // n, -(-1000 // n)}
     assert 0 <= steps[-1] < -(-1000 // n)
+
+
+@pytest.mark.parametrize(("setting", "bound"), [(True, 1.0), (False, None), (1.5, 1.5)])
+def test_x0_clamp_bound(setting, bound):
+    diffusion = GaussianDiffusion(num_steps=10, clip_x0=setting)
+    x0 = torch.tensor([-3.0, -1.2, 0.3, 1.2, 3.0])
+    expected = x0 if bound is None else torch.tensor([max(-bound, min(bound, v)) for v in x0.tolist()])
+    torch.testing.assert_close(diffusion.clamp(x0), expected)
+
+
+def test_x0_clamp_bound_must_be_positive():
+    with pytest.raises(ValueError, match="positive bound"):
+        GaussianDiffusion(num_steps=10, clip_x0=0.0)

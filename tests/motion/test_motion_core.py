@@ -182,7 +182,11 @@ def test_normalizer_min_max_and_state_is_plain_tensors():
     assert torch.equal(y[:, 1], torch.tensor([-1.0, -1.0, -1.0]))  # zero range -> range 1
     assert torch.allclose(y[:, 2], torch.tensor([-1.0, 1.0, 0.0]))
     assert torch.allclose(norm.unnormalize(y), data)
-    assert norm.normalize(torch.tensor([[2.0, 5.0, 10.0]])).max() == 1.0  # clipped
+    # Outside the training range nothing is clipped: channel 0 spans [0, 1] -> 2.0 is 3.0, channel 2 spans [1, 3]
+    # -> 10.0 is (10 - 1) / 2 * 2 - 1 = 8.0; and back again exactly.
+    outside = torch.tensor([[2.0, 5.0, 10.0]])
+    torch.testing.assert_close(norm.normalize(outside), torch.tensor([[3.0, -1.0, 8.0]]))
+    torch.testing.assert_close(norm.unnormalize(norm.normalize(outside)), outside)
     state = norm.state_dict()
     assert all(type(v) is torch.Tensor for v in state.values())
     other = MinMaxNormalizer(3)
