@@ -187,6 +187,7 @@ class SongFigures:
     bas: float
     bas_shifted: float
     bas_shift_frames: int
+    n_music_beats: int
     n_boundaries: int
 
     def checks(self) -> dict[str, bool]:
@@ -221,6 +222,7 @@ def dance_figures(
         bas=beats.bas,
         bas_shifted=beats.shifted,
         bas_shift_frames=beats.shift_frames,
+        n_music_beats=beats.n_music_beats,
         n_boundaries=len(boundaries),
     )
 
