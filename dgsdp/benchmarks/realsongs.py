@@ -256,10 +256,10 @@ def training_mean_speed(spec: Any, cache_dir: str | os.PathLike, *, progress: bo
         names = read_split(root, split)
     except DgsdpError as e:
         return math.nan, f"training split unreadable: {e}"
-    stamps = []
+    stamps = []  # the cached figure is recomputed when a motion file changes
     for name in names:
-        st = (root / "motions" / f"{name}.pkl").stat() if (root / "motions" / f"{name}.pkl").exists() else None
-        stamps.append([name, None if st is None else [st.st_size, st.st_mtime_ns]])
+        pkl = root / "motions" / f"{name}.pkl"
+        stamps.append([name, [pkl.stat().st_size, pkl.stat().st_mtime_ns] if pkl.is_file() else None])
     key = stable_hash({"root": str(root.resolve()), "split": split, "fps": fps, "files": stamps})
     cache_file = Path(cache_dir) / "realsongs" / f"train-speed-{key}.json"
     if cache_file.is_file():
@@ -267,9 +267,9 @@ def training_mean_speed(spec: Any, cache_dir: str | os.PathLike, *, progress: bo
             return float(json.loads(cache_file.read_text())["mean_speed_m_s"]), f"{root} ({split}, cached)"
         except (ValueError, KeyError, TypeError):
             pass  # a damaged cache file is recomputed
-    try:
-        import torch
+    import torch
 
+    try:
         sequences = load_sequences(root, split, fps=fps, cache_dir=cache_dir, progress=progress)
     except DgsdpError as e:
         return math.nan, f"training data unreadable: {e}"
@@ -329,6 +329,10 @@ def _song_label(path: Path) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") or "song"
 
 
+def _dbfs(amplitude: float) -> float:
+    return 20.0 * math.log10(max(amplitude, 1e-10))
+
+
 def analyse_song(path: Path) -> SongInfo | None:
     """Length, loudness and tempo of a file (ffmpeg, else the project's loader); None if nothing decodes it."""
     import librosa
@@ -353,8 +357,7 @@ def analyse_song(path: Path) -> SongInfo | None:
             envelope = librosa.onset.onset_strength(y=samples, sr=ANALYSIS_RATE_HZ, hop_length=256)
             tempo = float(np.atleast_1d(librosa.feature.tempo(onset_envelope=envelope, sr=ANALYSIS_RATE_HZ,
                                                                hop_length=256))[0])  # fmt: skip
-    db = lambda x: 20.0 * math.log10(max(x, 1e-10))  # noqa: E731
-    return SongInfo(str(path), _song_label(path), seconds, db(rms), db(peak), tempo, decoder)
+    return SongInfo(str(path), _song_label(path), seconds, _dbfs(rms), _dbfs(peak), tempo, decoder)
 
 
 def pick_varied(songs: Sequence[SongInfo], n: int) -> list[SongInfo]:
@@ -565,6 +568,17 @@ def music_beats(song: Path, cache_dir: str | os.PathLike) -> np.ndarray:
     return beats
 
 
+def _no_nan(value: Any) -> Any:
+    """``value`` with every NaN replaced by None (null in JSON)."""
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _no_nan(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_no_nan(v) for v in value]
+    return value
+
+
 def _fmt(value: float, spec: str) -> str:
     return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
 
@@ -729,7 +743,7 @@ def run_benchmark(
             ],
             "summary": summary_line(results, train_speed),
         }
-        atomic_write_text(json_path, json.dumps(payload, indent=2, allow_nan=True) + "\n")
+        atomic_write_text(json_path, json.dumps(_no_nan(payload), indent=2, allow_nan=False) + "\n")
     return results
 
 
