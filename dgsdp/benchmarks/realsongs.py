@@ -236,56 +236,82 @@ def floor_height(generator_or_spec: Any) -> float:
     return 0.0 if value is None else float(value)
 
 
-def training_mean_speed(spec: Any, cache_dir: str | os.PathLike, *, progress: bool = False) -> tuple[float, str]:
-    """Mean joint speed (m/s, over every frame of every training dance) of the data a run was trained on, read
-    from the data root its config records, with the project's loader; cached in ``cache_dir``. Returns (speed,
-    where it came from); NaN and the reason when the data cannot be found."""
+def training_figures(
+    spec: Any,
+    cache_dir: str | os.PathLike,
+    *,
+    floor_m: float = 0.0,
+    window: int = 150,
+    stride: int = 75,
+    progress: bool = False,
+) -> tuple[dict[str, float] | None, str]:
+    """The benchmark's figures on the data a run was trained on (its config's ``data.root``, train split, read with
+    the project's loader), the reference for the dances: mean joint speed over every frame of every dance, p99.9
+    joint speed, deepest penetration, floating fraction over every frame, and the mean seam ratio of the dances
+    with long-form window boundaries laid on them (about 1.0: real dances have no seams). Cached in
+    ``cache_dir/realsongs``. Returns (figures, where they came from), or (None, why) without the data."""
     from dgsdp.data.aistpp import read_split
     from dgsdp.data.datamodule import load_sequences
-    from dgsdp.motion import pose_to_joints
     from dgsdp.utils.io import atomic_write_text, stable_hash
 
     data = (getattr(spec, "record", None) or {}).get("data") or {}
     root = data.get("root")
     if not root or not (Path(root) / "motions").is_dir():
-        return math.nan, f"training data not found (data.root={root!r}); give --train-speed"
+        return None, f"training data not found (data.root={root!r}); give --train-speed"
     root = Path(root)
     split = str(data.get("train_split", "train"))
     fps = int(data.get("fps", FPS))
     try:
         names = read_split(root, split)
     except DgsdpError as e:
-        return math.nan, f"training split unreadable: {e}"
-    stamps = []  # the cached figure is recomputed when a motion file changes
+        return None, f"training split unreadable: {e}"
+    stamps = []  # the cached figures are recomputed when a motion file changes
     for name in names:
         pkl = root / "motions" / f"{name}.pkl"
         stamps.append([name, [pkl.stat().st_size, pkl.stat().st_mtime_ns] if pkl.is_file() else None])
-    key = stable_hash({"root": str(root.resolve()), "split": split, "fps": fps, "files": stamps})
-    cache_file = Path(cache_dir) / "realsongs" / f"train-speed-{key}.json"
+    settings = {"floor_m": float(floor_m), "window": int(window), "stride": int(stride), "fps": fps}
+    key = stable_hash({"root": str(root.resolve()), "split": split, "files": stamps, **settings})
+    cache_file = Path(cache_dir) / "realsongs" / f"train-figures-{key}.json"
     if cache_file.is_file():
         try:
-            return float(json.loads(cache_file.read_text())["mean_speed_m_s"]), f"{root} ({split}, cached)"
+            return dict(json.loads(cache_file.read_text())["figures"]), f"{root} ({split}, cached)"
         except (ValueError, KeyError, TypeError):
             pass  # a damaged cache file is recomputed
     import torch
 
+    from dgsdp.motion import pose_to_joints
+
     try:
         sequences = load_sequences(root, split, fps=fps, cache_dir=cache_dir, progress=progress)
     except DgsdpError as e:
-        return math.nan, f"training data unreadable: {e}"
-    total, steps = 0.0, 0
+        return None, f"training data unreadable: {e}"
+    speeds, floating, seams, penetration, frames = [], 0.0, [], 0.0, 0
     for seq in sequences:
         if len(seq.motion) < 2:
             continue
         joints = pose_to_joints(torch.from_numpy(np.asarray(seq.motion, dtype=np.float64))).numpy()
-        speeds = joint_speeds(joints, fps)
-        total += float(speeds.sum())
-        steps += speeds.size
-    if steps == 0:
-        return math.nan, f"no training dance of two frames or more in {root} ({split})"
-    speed = total / steps
-    atomic_write_text(cache_file, json.dumps({"mean_speed_m_s": speed, "root": str(root), "split": split}))
-    return speed, f"{root} ({split})"
+        speeds.append(joint_speeds(joints, fps).reshape(-1))
+        floating += floating_fraction(joints, floor_m) * len(joints)
+        frames += len(joints)
+        penetration = max(penetration, penetration_cm(joints, floor_m))
+        boundaries = window_boundaries(len(joints), window, stride)
+        if boundaries.size:
+            seams.append(seam_ratio(joints, boundaries, fps))
+    if not speeds:
+        return None, f"no training dance of two frames or more in {root} ({split})"
+    pooled = np.concatenate(speeds)
+    figures = {
+        "mean_speed_m_s": float(pooled.mean()),
+        "p999_speed_m_s": float(np.percentile(pooled, 99.9)),
+        "penetration_cm": penetration,
+        "floating_fraction": floating / frames,
+        "seam_ratio": float(np.nanmean(seams)) if seams else math.nan,
+        "n_dances": len(speeds),
+        "seconds": frames / fps,
+    }
+    record = {"figures": figures, "root": str(root), "split": split, **settings}
+    atomic_write_text(cache_file, json.dumps(_no_nan(record)))
+    return figures, f"{root} ({split})"
 
 
 # --- song set ----------------------------------------------------------------------------------------------------
@@ -633,6 +659,7 @@ def run_benchmark(
     floor_m: float | None = None,
     train_speed: float | None = None,
     json_path: Path | None = None,
+    motions_dir: Path | None = None,
     out: Any = None,
 ) -> list[SongResult]:
     """Dance to every song of ``folder`` as generate.py would and print the table and the summary line (to ``out``,
@@ -641,7 +668,7 @@ def run_benchmark(
 
     from dgsdp.cli.config import compose_config
     from dgsdp.cli.generate import edit_settings
-    from dgsdp.generation.pipeline import DanceGenerator, find_songs
+    from dgsdp.generation.pipeline import DanceGenerator, find_songs, write_motion
     from dgsdp.motion import pose_to_joints
     from dgsdp.sampling import SamplingSettings
 
@@ -661,10 +688,13 @@ def run_benchmark(
     window = min(sampling.window_frames or generator.window, generator.model.denoiser.seq_len)
     stride = min(sampling.stride_frames, window)
     floor = floor_height(generator) if floor_m is None else float(floor_m)
-    if train_speed is None:
-        train_speed, train_source = training_mean_speed(generator.spec, cfg.paths.cache_dir)
-    else:
+    reference, train_source = training_figures(
+        generator.spec, cfg.paths.cache_dir, floor_m=floor, window=window, stride=stride
+    )
+    if train_speed is not None:
         train_source = "--train-speed"
+    else:
+        train_speed = math.nan if reference is None else float(reference["mean_speed_m_s"])
     genres: list[str | None] = [None]
     if generator.style_dim:
         genres = list(generator.embedder().vocab.codes)
@@ -677,6 +707,14 @@ def run_benchmark(
         f"training mean joint speed {_fmt(train_speed, '.3f')} m/s from {train_source}",
         file=out,
     )
+    if reference is not None:
+        r = reference
+        print(
+            f"training data ({r['n_dances']:g} dances, {r['seconds']:.0f} s) on the same measures: "
+            f"p999={r['p999_speed_m_s']:.2f} pen_cm={r['penetration_cm']:.1f} float={r['floating_fraction']:.3f} "
+            f"seam={_fmt(r['seam_ratio'], '.2f')} speed={r['mean_speed_m_s']:.3f}",
+            file=out,
+        )
     width = max([len(s.name) for s in songs] + [4])
     print(header(width), file=out, flush=True)
     results: list[SongResult] = []
@@ -697,6 +735,8 @@ def run_benchmark(
                 seed=int(cfg.seed), progress=bool(cfg.progress),
             )  # fmt: skip
             result.dance_seconds = time.perf_counter() - start
+            if motions_dir is not None:
+                write_motion(motions[0], motions_dir / song.stem, fps=generator.fps, formats=["npy"])
             joints = pose_to_joints(motions[0].double()).numpy()
             boundaries = window_boundaries(len(joints), window, stride)
             result.figures = dance_figures(joints, music_beats=beats, boundaries=boundaries, floor_m=floor)
@@ -716,6 +756,7 @@ def run_benchmark(
             "floor_m": floor,
             "train_speed_m_s": None if math.isnan(train_speed) else train_speed,
             "train_speed_source": train_source,
+            "training_data_figures": reference,
             "window_frames": window,
             "stride_frames": stride,
             "thresholds": {
@@ -788,10 +829,12 @@ def main(argv: list[str] | None = None) -> int:
             help="the training data's mean joint speed in m/s (default: computed from its data)",
         )
         parser.add_argument("--json", type=Path, default=None, help="write every figure to this JSON file")
+        parser.add_argument("--motions", type=Path, default=None,
+                            help="also write each dance (T, 151) as <folder>/<song>.npy, e.g. to render it later")  # fmt: skip
         args = parser.parse_intermixed_args(argv)
         run_benchmark(
             args.folder, args.checkpoint, args.overrides, style=args.style, floor_m=args.floor,
-            train_speed=args.train_speed, json_path=args.json,
+            train_speed=args.train_speed, json_path=args.json, motions_dir=args.motions,
         )  # fmt: skip
         return 0
     except DgsdpError as e:

@@ -134,11 +134,10 @@ def test_floor_height_from_the_run_with_zero_fallback():
     assert rs.floor_height(SimpleNamespace(floor_height=None)) == 0.0
 
 
-def test_training_speed_without_the_training_data(tmp_path):
-    speed, why = rs.training_mean_speed(SimpleNamespace(record={"data": {"root": str(tmp_path / "gone")}}), tmp_path)
-    assert math.isnan(speed) and "not found" in why and "--train-speed" in why
-    speed, why = rs.training_mean_speed(SimpleNamespace(record={}), tmp_path)
-    assert math.isnan(speed)
+def test_training_figures_without_the_training_data(tmp_path):
+    figures, why = rs.training_figures(SimpleNamespace(record={"data": {"root": str(tmp_path / "gone")}}), tmp_path)
+    assert figures is None and "not found" in why and "--train-speed" in why
+    assert rs.training_figures(SimpleNamespace(record={}), tmp_path)[0] is None
 
 
 def test_pick_varied_starts_long_and_spreads_out():
@@ -215,7 +214,7 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     report = tmp_path / "figures.json"
     code = rs.main([
         str(songs), "--checkpoint", checkpoint, "device=cpu", "sampling.steps=2", "progress=false",
-        f"paths.cache_dir={tmp_path / 'cache'}", "--json", str(report),
+        f"paths.cache_dir={tmp_path / 'cache'}", "--json", str(report), "--motions", str(tmp_path / "dances"),
     ])  # fmt: skip
     assert code == 0
     printed = capsys.readouterr().out.splitlines()
@@ -232,9 +231,24 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     for song in (long, short):
         assert set(song["checks"]) == {"p999", "penetration", "floating", "seam", "bas"}
         assert song["figures"]["mean_speed_m_s"] > 0
+    # the figures are those of the dance written with --motions, measured here on their own
+    import torch
+
+    from dgsdp.motion import pose_to_joints
+
+    motion = np.load(tmp_path / "dances" / "clicks.npy")
+    assert motion.shape == (210, 151)
+    joints = pose_to_joints(torch.from_numpy(motion).double()).numpy()
+    step = np.linalg.norm(joints[1:] - joints[:-1], axis=-1) * 30
+    assert long["figures"]["mean_speed_m_s"] == pytest.approx(step.mean(), rel=1e-5)
+    assert long["figures"]["penetration_cm"] == pytest.approx(max(0.0, -100 * joints[..., 2].min()), rel=1e-5, abs=1e-6)
+    assert long["figures"]["floating_fraction"] == pytest.approx(np.mean(joints[:, [7, 8, 10, 11], 2].min(1) > 0.1))
     # the training data (the tiny dataset the checkpoint was trained on) was found, measured and cached
     assert data["train_speed_m_s"] > 0 and str(tmp_path / "data") in data["train_speed_source"]
-    cached = list((tmp_path / "cache" / "realsongs").glob("train-speed-*.json"))
+    cached = list((tmp_path / "cache" / "realsongs").glob("train-figures-*.json"))
     assert len(cached) == 1
-    assert json.loads(cached[0].read_text())["mean_speed_m_s"] == pytest.approx(data["train_speed_m_s"])
+    assert json.loads(cached[0].read_text())["figures"]["mean_speed_m_s"] == pytest.approx(data["train_speed_m_s"])
+    reference = data["training_data_figures"]
+    assert reference["n_dances"] == 2 and reference["seconds"] == pytest.approx(16.0)  # two 8 s dances
+    assert reference["seam_ratio"] > 0  # 240 frames: boundaries at 75 and 150 laid on them
     assert long["speed_ratio"] == pytest.approx(long["figures"]["mean_speed_m_s"] / data["train_speed_m_s"])
