@@ -21,6 +21,7 @@ summary line. The metric functions below are plain numpy on joints (T, 24, 3).
 from __future__ import annotations
 
 import argparse
+import glob
 import json
 import math
 import os
@@ -389,21 +390,13 @@ def analyse_song(path: Path) -> SongInfo | None:
 def pick_varied(songs: Sequence[SongInfo], n: int) -> list[SongInfo]:
     """``n`` songs spread over length (log seconds), loudness (RMS dBFS), tempo and kind of file (tracker module,
     readable by the project's loader only): the longest first, then each time the song farthest (in standardised
-    units) from all those picked; another kind of file counts as far, so that each kind comes early. Deterministic for given songs."""
+    units) from all those picked; another kind of file counts as far, so that each kind comes early.
+    Deterministic for given songs."""
     if n <= 0 or not songs:
         return []
+    kinds = [(Path(s.path).suffix.lower() in TRACKER_SUFFIXES, s.decoder == "loader") for s in songs]
     feats = np.array(
-        [
-            [
-                math.log(s.seconds),
-                s.rms_dbfs,
-                s.tempo_bpm,
-                Path(s.path).suffix.lower() in TRACKER_SUFFIXES,
-                s.decoder == "loader",
-            ]  # fmt: skip
-            for s in songs
-        ],
-        dtype=np.float64,
+        [[math.log(s.seconds), s.rms_dbfs, s.tempo_bpm, *kind] for s, kind in zip(songs, kinds)], dtype=np.float64
     )
     feats = np.where(np.isfinite(feats), feats, np.nanmean(np.where(np.isfinite(feats), feats, np.nan), axis=0))
     measured = feats[:, :3]
@@ -531,7 +524,15 @@ def prepare(out: Path, sources: Sequence[str], max_songs: int, min_seconds: floa
     }
     for k, song in enumerate(chosen, 1):
         print(f"[{k}/{len(chosen)}] writing {song.name} ({song.seconds:.0f} s)", file=sys.stderr, flush=True)
-        entry = {**asdict(song), "files": write_versions(song, out)}
+        try:
+            entry = {**asdict(song), "files": write_versions(song, out)}
+        except DgsdpError as e:  # this song is left out whole; the others go on
+            for f in out.glob(f"{glob.escape(song.name)}*"):
+                if song_family(f) == song.name:
+                    f.unlink()
+            skipped.append(f"{song.path}: {e}")
+            print(f"  {song.name} left out: {e}", file=sys.stderr)
+            continue
         loud = entry["files"]["loud"]
         if loud["clipped_fraction"] <= 0:
             print(f"  warning: {song.name}-loud.wav does not clip (peak {loud['peak_dbfs']} dBFS)", file=sys.stderr)

@@ -252,3 +252,24 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     assert reference["n_dances"] == 2 and reference["seconds"] == pytest.approx(16.0)  # two 8 s dances
     assert reference["seam_ratio"] > 0  # 240 frames: boundaries at 75 and 150 laid on them
     assert long["speed_ratio"] == pytest.approx(long["figures"]["mean_speed_m_s"] / data["train_speed_m_s"])
+
+
+@pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="the song set is built with ffmpeg")
+def test_prepare_leaves_out_a_song_it_cannot_write_whole(tmp_path, monkeypatch):
+    src = tmp_path / "testsongs"
+    src.mkdir()
+    click_song(src / "beeps.wav", 31.0)
+    real_ffmpeg = rs._ffmpeg
+
+    def failing_96k(args, out):
+        if out.name.endswith("-96k.wav"):
+            raise rs.DgsdpError("ffmpeg failed writing it (simulated)")
+        real_ffmpeg(args, out)
+
+    monkeypatch.setattr(rs, "_ffmpeg", failing_96k)
+    out = tmp_path / "set"
+    assert rs.main(["prepare", str(out), "--sources", str(src)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["songs.json"]  # no half-written song
+    manifest = json.loads((out / "songs.json").read_text())
+    assert manifest["songs"] == [] and "simulated" in manifest["skipped"][0]
+    assert rs.main(["prepare", str(out), "--sources", str(src)]) == 1  # a folder with files in it is refused
