@@ -1,0 +1,275 @@
+"""The real-song benchmark's figures against hand-made joint arrays with answers worked out by hand, its song-set
+builder on a generated song, and its command line end to end on a tiny checkpoint."""
+
+import json
+import math
+import shutil
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import soundfile as sf
+
+from dgsdp.benchmarks import realsongs as rs
+
+FPS = 30
+
+
+def translating(positions_x: np.ndarray, height: float = 0.5) -> np.ndarray:
+    """All 24 joints at x = positions_x[t] (one point), y = 0, z = height: (T, 24, 3)."""
+    joints = np.zeros((len(positions_x), 24, 3))
+    joints[:, :, 0] = np.asarray(positions_x)[:, None]
+    joints[:, :, 2] = height
+    return joints
+
+
+def test_constant_velocity_speeds():
+    # 0.05 m per frame at 30 FPS is 1.5 m/s for every joint and frame
+    joints = translating(0.05 * np.arange(200))
+    assert rs.mean_joint_speed(joints) == pytest.approx(1.5)
+    assert rs.p999_joint_speed(joints) == pytest.approx(1.5)
+    np.testing.assert_allclose(rs.windowed_speed(joints), 1.5)
+
+
+def test_p999_ignores_rare_spikes_but_not_sustained_ones():
+    # 1000 steps x 24 joints = 24000 speeds; p99.9 sits between sorted speeds 23975 and 23976 (0-based): the 24 or
+    # 25 largest count. Background: every joint at 0.5 m/s along y; spikes: joint 3 at 30 m/s.
+    def dance(n_spikes: int) -> np.ndarray:
+        joints = np.zeros((1001, 24, 3))
+        joints[:, :, 1] = (0.5 / FPS) * np.arange(1001)[:, None]
+        steps = np.zeros(1000)
+        steps[100 : 100 + n_spikes] = 30.0 / FPS
+        joints[1:, 3, 0] = np.cumsum(steps)  # adds 30 m/s along x: speed sqrt(30^2 + 0.5^2)
+        return joints
+
+    assert rs.p999_joint_speed(dance(10)) == pytest.approx(0.5)
+    assert rs.p999_joint_speed(dance(50)) == pytest.approx(math.hypot(30.0, 0.5))
+
+
+def test_penetration_cm():
+    joints = translating(np.zeros(20), height=0.3)
+    joints[7, 10, 2] = -0.05  # one toe 5 cm below z = 0 in one frame
+    assert rs.penetration_cm(joints, 0.0) == pytest.approx(5.0)
+    assert rs.penetration_cm(joints, 0.02) == pytest.approx(7.0)
+    assert rs.penetration_cm(joints, -0.10) == 0.0
+
+
+def test_floating_fraction_uses_the_lowest_foot_joint():
+    joints = translating(np.zeros(10), height=1.0)  # the body (non-foot joints) is high everywhere
+    joints[:, [7, 8, 10, 11], 2] = 0.05  # feet 5 cm up: standing
+    joints[:3, [7, 8, 10, 11], 2] = 0.15  # frames 0-2: every foot joint 15 cm up: floating
+    joints[5, 7, 2] = 0.6  # frame 5: one ankle lifted, the other foot down: not floating
+    joints[6, 0, 2] = -0.3  # frame 6: a low pelvis does not count
+    assert rs.floating_fraction(joints, 0.0) == pytest.approx(0.3)
+    # the floor 10 cm higher: the raised feet are 5 cm above it, not floating
+    assert rs.floating_fraction(joints, 0.10) == 0.0
+    assert rs.floating_fraction(joints, -0.06) == pytest.approx(1.0)  # 0.05 + 0.06 > 0.10 everywhere
+
+
+def test_window_boundaries_are_the_stride_multiples_inside_the_dance():
+    np.testing.assert_array_equal(rs.window_boundaries(300, 150, 75), [75, 150, 225])
+    np.testing.assert_array_equal(rs.window_boundaries(320, 150, 75), [75, 150, 225, 300])
+    assert rs.window_boundaries(100, 150, 75).size == 0
+
+
+def test_seam_ratio_of_smooth_and_jumping_motion():
+    n, b = 300, 150
+    smooth = translating((1.0 / FPS) * np.arange(n))  # 1 m/s
+    assert rs.seam_ratio(smooth, [75, 150, 225]) == pytest.approx(1.0)
+    # a 10 cm jump between frames 149 and 150: step 149 has speed 1 + 0.1 * 30 = 4 m/s. The +-2-frame speed of
+    # frames 148..151 (whose 4 steps t-2 .. t+1 include step 149) is (3 * 1 + 4) / 4 = 1.75; every
+    # other frame's is 1 (cut windows at the ends average steps of 1 m/s too). Mean over the 300 frames:
+    # 1 + 4 * 0.75 / 300 = 1.01. Ratio at the one boundary 150: 1.75 / 1.01.
+    jumping = translating((1.0 / FPS) * np.arange(n) + 0.1 * (np.arange(n) >= b))
+    speed = rs.windowed_speed(jumping)
+    np.testing.assert_allclose(speed[148:152], 1.75)
+    assert speed[147] == pytest.approx(1.0) and speed[152] == pytest.approx(1.0)
+    assert rs.seam_ratio(jumping, [b]) == pytest.approx(1.75 / 1.01)
+    # boundaries away from the jump look like any other moment, less the jump's share of the mean
+    assert rs.seam_ratio(jumping, [75, 225]) == pytest.approx(1.0 / 1.01)
+    assert math.isnan(rs.seam_ratio(smooth, []))
+    assert math.isnan(rs.seam_ratio(translating(np.zeros(50)), [25]))  # no motion at all
+
+
+def stepping_dance(n_frames: int = 301, period: int = 20) -> np.ndarray:
+    """Every joint steps along x with step 1.1 - cos(2 pi k / period): speed minima (kinematic beats) at k = 20 m."""
+    k = np.arange(n_frames - 1)
+    x = np.concatenate([[0.0], np.cumsum(0.01 * (1.1 - np.cos(2 * np.pi * k / period)))])
+    return translating(x)
+
+
+def test_bas_on_the_beat_beats_the_half_beat_shifted_copy():
+    music = np.arange(20, 300, 20)  # 20 .. 280: every kinematic beat of the dance
+    scores = rs.beat_scores(stepping_dance(), music)
+    assert scores.shift_frames == 10
+    assert scores.bas == pytest.approx(1.0)
+    # shifted: every music beat is 10 frames from the nearest kinematic beat; sigma = 3 * 30 / 60 = 1.5 frames
+    assert scores.shifted == pytest.approx(math.exp(-(10**2) / (2 * 1.5**2)), rel=1e-6)
+    assert scores.above_shifted
+    # a dance half a beat off the music: the shifted copy lands on the beats instead
+    off = rs.beat_scores(stepping_dance(), music + 10)
+    assert off.bas < 1e-6 and off.shifted == pytest.approx(1.0) and not off.above_shifted
+    one_beat = rs.beat_scores(stepping_dance(), [40])
+    assert math.isnan(one_beat.bas) and not one_beat.above_shifted
+
+
+def test_dance_figures_checks_follow_the_thresholds():
+    joints = stepping_dance()
+    joints[:, [7, 8, 10, 11], 2] = 0.0  # feet on the floor
+    figures = rs.dance_figures(joints, music_beats=np.arange(20, 300, 20), boundaries=[75, 150, 225])
+    assert figures.seconds == pytest.approx(301 / FPS)
+    assert figures.checks() == {"p999": True, "penetration": True, "floating": True, "seam": True, "bas": True}
+    joints[:, :, 2] += 0.5  # lifted 50 cm: floating in every frame
+    joints[10, 3, 2] = -0.04  # and one joint 4 cm under the floor
+    checks = rs.dance_figures(joints, music_beats=[20, 40, 60], boundaries=[]).checks()
+    assert not checks["floating"] and not checks["penetration"] and checks["seam"]
+
+
+def test_floor_height_from_the_run_with_zero_fallback():
+    assert rs.floor_height(SimpleNamespace(spec=SimpleNamespace())) == 0.0
+    assert rs.floor_height(SimpleNamespace(spec=SimpleNamespace(floor_height=0.07))) == pytest.approx(0.07)
+    assert rs.floor_height(SimpleNamespace(floor_height=-0.02)) == pytest.approx(-0.02)
+    assert rs.floor_height(SimpleNamespace(floor_height=None)) == 0.0
+
+
+def test_training_figures_without_the_training_data(tmp_path):
+    figures, why = rs.training_figures(SimpleNamespace(record={"data": {"root": str(tmp_path / "gone")}}), tmp_path)
+    assert figures is None and "not found" in why and "--train-speed" in why
+    assert rs.training_figures(SimpleNamespace(record={}), tmp_path)[0] is None
+
+
+def test_pick_varied_starts_long_and_spreads_out():
+    def song(name, seconds, rms, bpm, decoder="ffmpeg"):
+        return rs.SongInfo(name, name, seconds, rms, 0.0, bpm, decoder)
+
+    songs = [
+        song("a", 60, -20, 120), song("b", 61, -20, 121), song("c", 200, -18, 100), song("d", 45, -35, 90),
+        song("e", 90, -10, 170), song("f", 62, -21, 119),
+    ]  # fmt: skip
+    picked = [s.name for s in rs.pick_varied(songs, 4)]
+    assert picked[0] == "c"  # the longest
+    assert len(set(picked)) == 4 and {"d", "e"} <= set(picked)  # the quiet slow one and the loud fast one
+    assert len({"a", "b", "f"} & set(picked)) == 1  # one of three near-twins
+    assert [s.name for s in rs.pick_varied(songs, 10)] == [s.name for s in rs.pick_varied(songs, 6)]
+    assert rs.pick_varied(songs, 4) == rs.pick_varied(list(reversed(songs)), 4)
+    # a rare kind of file (a tracker module, a file only the project's loader reads) comes early
+    rare = [*songs, song("g.xm", 61, -20, 120), song("h.ogg", 60, -20, 121, decoder="loader")]
+    assert {s.name for s in rs.pick_varied(rare, 3)[1:]} == {"g.xm", "h.ogg"}
+
+
+def test_styles_cycle_per_original_song():
+    songs = [Path(f"{s}.wav") for s in ("b", "b-8k", "b-96k", "b-loud", "a", "a-loud", "c")]
+    assert rs.styles_for(songs, ["BR", "KR"], None) == ["KR", "KR", "KR", "KR", "BR", "BR", "BR"]
+    assert rs.styles_for(songs, ["BR"], "krump") == ["krump"] * 7
+
+
+def click_song(path: Path, seconds: float, rate_hz: int = 22050, amplitude: float = 0.3) -> None:
+    t = np.arange(int(seconds * rate_hz)) / rate_hz
+    audio = amplitude * np.sin(2 * np.pi * 440 * t) * (np.mod(t, 0.5) < 0.05)  # a beep every half second
+    sf.write(path, np.stack([audio, audio], axis=1), rate_hz, subtype="PCM_16")
+
+
+@pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="the song set is built with ffmpeg")
+def test_prepare_writes_four_versions_and_the_loud_one_clips(tmp_path, capsys):
+    src = tmp_path / "testsongs" / "music"
+    src.mkdir(parents=True)
+    click_song(src / "beeps.wav", 32.0)
+    click_song(src / "jingle.wav", 3.0)  # too short: a jingle, not a song
+    (src / "broken.ogg").write_bytes(b"OggS not really")
+    out = tmp_path / "set"
+    assert rs.main(["prepare", str(out), "--sources", str(src), "--max-songs", "3"]) == 0
+    names = {p.name for p in out.iterdir()}
+    assert names == {"testsongs-beeps.wav", "testsongs-beeps-loud.wav", "testsongs-beeps-8k.wav",
+                     "testsongs-beeps-96k.wav", "songs.json"}  # fmt: skip
+    loud, _ = sf.read(out / "testsongs-beeps-loud.wav", dtype="int16")
+    original, _ = sf.read(out / "testsongs-beeps.wav", dtype="int16")
+    assert np.abs(loud.astype(int)).max() >= 32767  # clipped at full scale (0.3 * 10 = 3 x full scale)
+    assert np.mean(np.abs(loud.astype(int)) >= 32767) > 0.01
+    assert (
+        sf.info(out / "testsongs-beeps-8k.wav").samplerate == 8000
+        and sf.info(out / "testsongs-beeps-8k.wav").channels == 1
+    )
+    assert sf.info(out / "testsongs-beeps-96k.wav").samplerate == 96000
+    assert sf.info(out / "testsongs-beeps-96k.wav").duration == pytest.approx(32.0, abs=0.01)
+    assert np.array_equal(original, sf.read(src / "beeps.wav", dtype="int16")[0])
+    manifest = json.loads((out / "songs.json").read_text())
+    assert [s["name"] for s in manifest["songs"]] == ["testsongs-beeps"]
+    assert any("broken.ogg" in line for line in manifest["skipped"])
+    assert manifest["songs"][0]["files"]["loud"]["peak_dbfs"] == pytest.approx(0.0, abs=0.01)
+    assert "testsongs-beeps" in capsys.readouterr().out
+
+
+def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "generation"))
+    from gen_helpers import train_tiny_checkpoint, write_click_song
+
+    checkpoint = train_tiny_checkpoint(tmp_path)
+    songs = tmp_path / "songs"
+    songs.mkdir()
+    write_click_song(songs / "clicks.wav", 7.0, bpm=120)
+    write_click_song(songs / "clicks-loud.wav", 3.0, bpm=100)
+    (songs / "zz-broken.wav").write_bytes(b"RIFF not audio")
+    report = tmp_path / "figures.json"
+    code = rs.main([
+        str(songs), "--checkpoint", checkpoint, "device=cpu", "sampling.steps=2", "progress=false",
+        f"paths.cache_dir={tmp_path / 'cache'}", "--json", str(report), "--motions", str(tmp_path / "dances"),
+    ])  # fmt: skip
+    assert code == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[-1].startswith("songs=3 ") and " errors=1 " in printed[-1]
+    assert any(line.startswith("zz-broken.wav") and "ERROR" in line for line in printed)
+    data = json.loads(report.read_text())
+    by_name = {s["name"]: s for s in data["songs"]}
+    assert by_name["zz-broken.wav"]["error"] and by_name["zz-broken.wav"]["figures"] is None
+    long, short = by_name["clicks.wav"], by_name["clicks-loud.wav"]
+    assert long["figures"]["seconds"] == pytest.approx(7.0) and short["figures"]["seconds"] == pytest.approx(3.0)
+    assert long["style"] == short["style"]  # versions of one song dance in one genre
+    assert long["figures"]["n_boundaries"] == 2  # 210 frames, windows of 150 frames 75 apart: 75 and 150
+    assert short["figures"]["n_boundaries"] == 0 and short["figures"]["seam_ratio"] is None  # one window: no seams
+    for song in (long, short):
+        assert set(song["checks"]) == {"p999", "penetration", "floating", "seam", "bas"}
+        assert song["figures"]["mean_speed_m_s"] > 0
+    # the figures are those of the dance written with --motions, measured here on their own
+    import torch
+
+    from dgsdp.motion import pose_to_joints
+
+    motion = np.load(tmp_path / "dances" / "clicks.npy")
+    assert motion.shape == (210, 151)
+    joints = pose_to_joints(torch.from_numpy(motion).double()).numpy()
+    step = np.linalg.norm(joints[1:] - joints[:-1], axis=-1) * 30
+    assert long["figures"]["mean_speed_m_s"] == pytest.approx(step.mean(), rel=1e-5)
+    assert long["figures"]["penetration_cm"] == pytest.approx(max(0.0, -100 * joints[..., 2].min()), rel=1e-5, abs=1e-6)
+    assert long["figures"]["floating_fraction"] == pytest.approx(np.mean(joints[:, [7, 8, 10, 11], 2].min(1) > 0.1))
+    # the training data (the tiny dataset the checkpoint was trained on) was found, measured and cached
+    assert data["train_speed_m_s"] > 0 and str(tmp_path / "data") in data["train_speed_source"]
+    cached = list((tmp_path / "cache" / "realsongs").glob("train-figures-*.json"))
+    assert len(cached) == 1
+    assert json.loads(cached[0].read_text())["figures"]["mean_speed_m_s"] == pytest.approx(data["train_speed_m_s"])
+    reference = data["training_data_figures"]
+    assert reference["n_dances"] == 2 and reference["seconds"] == pytest.approx(16.0)  # two 8 s dances
+    assert reference["seam_ratio"] > 0  # 240 frames: boundaries at 75 and 150 laid on them
+    assert long["speed_ratio"] == pytest.approx(long["figures"]["mean_speed_m_s"] / data["train_speed_m_s"])
+
+
+@pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="the song set is built with ffmpeg")
+def test_prepare_leaves_out_a_song_it_cannot_write_whole(tmp_path, monkeypatch):
+    src = tmp_path / "testsongs"
+    src.mkdir()
+    click_song(src / "beeps.wav", 31.0)
+    real_ffmpeg = rs._ffmpeg
+
+    def failing_96k(args, out):
+        if out.name.endswith("-96k.wav"):
+            raise rs.DgsdpError("ffmpeg failed writing it (simulated)")
+        real_ffmpeg(args, out)
+
+    monkeypatch.setattr(rs, "_ffmpeg", failing_96k)
+    out = tmp_path / "set"
+    assert rs.main(["prepare", str(out), "--sources", str(src)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["songs.json"]  # no half-written song
+    manifest = json.loads((out / "songs.json").read_text())
+    assert manifest["songs"] == [] and "simulated" in manifest["skipped"][0]
+    assert rs.main(["prepare", str(out), "--sources", str(src)]) == 1  # a folder with files in it is refused
