@@ -39,7 +39,7 @@ def test_hand_worked_axes(tmp_path):
     path = save_aistpp_pkl(tmp_path / "m.pkl", rot, trans)
     with open(path, "rb") as f:
         data = pickle.load(f)
-    assert set(data) == {"smpl_poses", "smpl_trans", "smpl_scaling", "smpl_loss", "joints3d", "fps"}
+    assert set(data) == {"smpl_poses", "smpl_trans", "smpl_scaling", "smpl_loss", "joints3d", "fps", "floor_height"}
     assert data["smpl_poses"].shape == (2, 72) and data["joints3d"].shape == (2, 24, 3)
     np.testing.assert_allclose(data["smpl_scaling"], [1.0])
     assert data["smpl_loss"] == 0.0 and data["fps"] == 30.0
