@@ -46,6 +46,8 @@ from dgsdp.motion.skeleton import FOOT_JOINTS
 # Legs: (hip, knee, ankle, toe) joints and the contact channels (ankle, toe) of each side.
 LEGS: tuple[tuple[tuple[int, int, int, int], tuple[int, int]], ...] = (((1, 4, 7, 10), (0, 2)), ((2, 5, 8, 11), (1, 3)))
 ROOT_Z_CHANNEL = 6
+# Passes of the vertical offset's smoother: each adds back the smoothed residual (1 - (1 - G)^(n + 1) overall).
+REFINE_STEPS = 2
 
 
 @dataclass(frozen=True)
@@ -163,6 +165,8 @@ def _vertical_offset(
             target[a:b] = (1 - w) * before + w * after
     sigma = s.smooth_seconds * fps
     offset = _smooth(target, sigma)
+    for _ in range(REFINE_STEPS):  # follow the target's slow changes closely while still rounding off its steps
+        offset = offset + _smooth(target - offset, sigma)
     # Raise the curve smoothly where a joint is still below the floor, then clamp what little is left.
     width = 2 * int(math.ceil(2 * sigma)) + 1
     for _ in range(6):
@@ -350,9 +354,9 @@ def clean_motion(
     batch = motion if motion.ndim == 3 else motion[None]
     masks = None
     if mask is not None:
-        masks = mask.detach().cpu().expand_as(batch) if mask.ndim == 2 else mask.detach().cpu()
-        if masks.shape != batch.shape:
+        if mask.shape not in (batch.shape, batch.shape[1:]):
             raise ValueError(f"mask {tuple(mask.shape)} does not match motion {tuple(motion.shape)}")
+        masks = mask.detach().cpu().expand_as(batch)
     src = batch.detach().cpu()
     cleaned = [
         _clean_one(src[i], float(fps), float(floor_height), None if masks is None else masks[i], s)
