@@ -8,10 +8,13 @@ elsewhere. Joints lie inside the body, so the floor by this measure is a few cen
 
 Cleanup (:func:`clean_motion`), from the model's own predicted foot contacts (channels 0-3, > 0.5 = contact):
 
-1. Foot locking: a foot (its ankle or toe predicted in contact) stays where it was planted. For each run of
-   contact frames the contact joint is held at its mean horizontal position over the run; the ankle is moved
+1. Foot locking: a foot (its ankle or toe predicted in contact, and down: within ``plant_height_m`` of its
+   standing height once the body is on the floor) stays where it was planted. Over each run of such frames the
+   joint is held at its mean horizontal position (over ``lock_window_seconds`` around each frame, so a short plant
+   is held still and a model that predicts contacts all the time keeps its slow footwork); the ankle is moved
    horizontally by the difference with a two-bone IK of hip and knee (the knee bends about its own hinge axis,
    the ankle keeps its orientation so the toe moves with it), blended in and out over ``lock_blend_seconds``.
+   The toe is held wherever it touches, the ankle where only it does.
 2. Vertical root correction: where a contact is predicted, the lowest contact foot joint is put on the floor;
    a run of frames without any contact no longer than ``max_air_seconds`` is a jump and keeps its own height (the
    offset is interpolated between the frames around it); a longer run cannot be a jump and is brought down (its
@@ -41,7 +44,7 @@ from scipy.ndimage import distance_transform_edt, gaussian_filter1d, maximum_fil
 from dgsdp.motion.fk import forward_kinematics
 from dgsdp.motion.representation import POSE_DIM, ROTATION_CHANNELS, unpack_pose
 from dgsdp.motion.rotation import axis_angle_to_matrix, matrix_to_6d
-from dgsdp.motion.skeleton import FOOT_JOINTS
+from dgsdp.motion.skeleton import FOOT_JOINTS, rest_offsets
 
 # Legs: (hip, knee, ankle, toe) joints and the contact channels (ankle, toe) of each side.
 LEGS: tuple[tuple[tuple[int, int, int, int], tuple[int, int]], ...] = (((1, 4, 7, 10), (0, 2)), ((2, 5, 8, 11), (1, 3)))
@@ -59,6 +62,8 @@ class FloorCleanup:
     smooth_seconds: float = 0.1  # Gaussian sigma of the vertical offset curve
     lock_feet: bool = True  # foot locking (two-bone leg IK); False: vertical correction only
     lock_blend_seconds: float = 0.1  # a lock fades in before and out after its contact run over this time
+    lock_window_seconds: float = 2.0  # a foot is held at its mean position over this window of its contact run
+    plant_height_m: float = 0.05  # a contact joint higher than this above its standing height is not planted
     max_lock_m: float = 0.3  # a lock moves a foot at most this far (a longer slide is not a planted foot)
     given_blend_seconds: float = 0.2  # corrections fade out towards given (masked) frames over this time
     floor_tolerance_m: float = 0.0  # joints may end at most this far below the floor
@@ -66,7 +71,8 @@ class FloorCleanup:
     def __post_init__(self) -> None:
         if not 0.0 <= self.contact_threshold <= 1.0:
             raise ValueError(f"contact_threshold must lie in [0, 1], got {self.contact_threshold}")
-        for name in ("max_air_seconds", "smooth_seconds", "lock_blend_seconds", "max_lock_m", "given_blend_seconds"):
+        names = ("max_air_seconds", "smooth_seconds", "lock_blend_seconds", "lock_window_seconds", "plant_height_m")
+        for name in (*names, "max_lock_m", "given_blend_seconds"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value}")
@@ -239,15 +245,22 @@ def leg_ik(
     )
 
 
-def _joint_lock(xy: np.ndarray, contact: np.ndarray, blend: int, max_lock_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Horizontal shift (T, 2) that holds one joint (positions ``xy`` (T, 2)) at its mean position over each of its
+def _joint_lock(
+    xy: np.ndarray, contact: np.ndarray, blend: int, half_window: int, max_lock_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal shift (T, 2) that holds one joint (positions ``xy`` (T, 2)) where it is planted over each of its
     contact runs (``contact`` (T,)), and the weight (T,) of that shift: 1 in a run, fading out over ``blend`` frames
-    before and after it."""
+    before and after it. The hold is the joint's mean position over the run's frames within ``half_window`` frames:
+    a run up to ``half_window`` + 1 frames long is held still at its mean; a longer one creeps with its own slow
+    travel (a model that predicts contacts all the time keeps its footwork)."""
     n = len(xy)
     shift = np.zeros((n, 2))
     weight = np.zeros(n)
     for a, b in _runs(contact):
-        seg = xy[a:b].mean(axis=0) - xy[a:b]
+        cum = np.concatenate((np.zeros((1, 2)), np.cumsum(xy[a:b], axis=0)))
+        t = np.arange(b - a)
+        lo, hi = np.maximum(t - half_window, 0), np.minimum(t + half_window + 1, b - a)
+        seg = (cum[hi] - cum[lo]) / (hi - lo)[:, None] - xy[a:b]
         norm = np.linalg.norm(seg, axis=-1, keepdims=True)
         seg *= np.minimum(1.0, max_lock_m / np.maximum(norm, 1e-12))
         lo, hi = max(0, a - blend), min(n, b + blend)
@@ -269,8 +282,9 @@ def _foot_shift(feet_xy: np.ndarray, contacts: np.ndarray, fps: float, s: FloorC
     is held wherever it touches (a foot turning or lifting its heel pivots about it); the ankle where only it
     touches. The foot moves rigidly, so holding either joint is a move of the ankle."""
     blend = max(1, int(round(s.lock_blend_seconds * fps)))
-    toe_shift, toe_w = _joint_lock(feet_xy[:, 1], contacts[:, 1], blend, s.max_lock_m)
-    ankle_shift, ankle_w = _joint_lock(feet_xy[:, 0], contacts[:, 0], blend, s.max_lock_m)
+    half = int(round(s.lock_window_seconds * fps / 2))
+    toe_shift, toe_w = _joint_lock(feet_xy[:, 1], contacts[:, 1], blend, half, s.max_lock_m)
+    ankle_shift, ankle_w = _joint_lock(feet_xy[:, 0], contacts[:, 0], blend, half, s.max_lock_m)
     return toe_w[:, None] * toe_shift + ((1 - toe_w) * ankle_w)[:, None] * ankle_shift
 
 
@@ -299,6 +313,13 @@ def _lock_feet(
 
 
 # --- the cleanup ----------------------------------------------------------------------------------------------
+def _standing_heights() -> np.ndarray:
+    """Heights (4,) of the foot joints (7, 8, 10, 11) above the toes of a flat foot: the ankle sits above its toe
+    by the toe's rest offset, the toes are the floor's reference."""
+    offsets = rest_offsets(torch.float64).numpy()
+    return np.array([-offsets[10, 1], -offsets[11, 1], 0.0, 0.0])
+
+
 def _leg_channels(side: int) -> list[int]:
     hip, knee, ankle, _ = LEGS[side][0]
     return [ROTATION_CHANNELS.start + 6 * j + k for j in (hip, knee, ankle) for k in range(6)]
@@ -311,6 +332,7 @@ def _clean_one(x: torch.Tensor, fps: float, floor: float, mask: torch.Tensor | N
     n = len(x)
     ramp = int(round(s.given_blend_seconds * fps))
     given = None if mask is None else mask.numpy() > 0
+    root_free = np.ones(n) if given is None else _free_weight(given[:, ROOT_Z_CHANNEL], ramp)
     rotmats = parts.rotmats
     out = x.clone()
     if s.lock_feet:
@@ -318,7 +340,12 @@ def _clean_one(x: torch.Tensor, fps: float, floor: float, mask: torch.Tensor | N
         if given is not None:
             for side in (0, 1):
                 free[:, side] = _free_weight(given[:, _leg_channels(side)].any(axis=1), ramp)
-        rotmats = _lock_feet(rotmats, parts.root_trans, contacts, fps, s, free)
+        # Only a contact joint that is down (once the body is on the floor) is planted: the model's contacts
+        # alone would also hold a raised foot.
+        z = forward_kinematics(rotmats, parts.root_trans)[..., 2].numpy()
+        z_on_floor = z + (_vertical_offset(z, contacts, floor, fps, s) * root_free)[:, None]
+        planted = contacts & (z_on_floor[:, list(FOOT_JOINTS)] - floor < _standing_heights() + s.plant_height_m)
+        rotmats = _lock_feet(rotmats, parts.root_trans, planted, fps, s, free)
         changed = sorted({c for side in (0, 1) for c in _leg_channels(side)})
         moved = (rotmats != parts.rotmats).flatten(-2).any(-1).any(-1)  # frames the IK touched
         sixd = matrix_to_6d(rotmats).flatten(-2)
@@ -326,9 +353,7 @@ def _clean_one(x: torch.Tensor, fps: float, floor: float, mask: torch.Tensor | N
             moved[:, None], sixd[:, [c - ROTATION_CHANNELS.start for c in changed]], x[:, changed]
         )
     joints = forward_kinematics(rotmats, parts.root_trans)
-    offset = _vertical_offset(joints[..., 2].numpy(), contacts, floor, fps, s)
-    if given is not None:
-        offset = offset * _free_weight(given[:, ROOT_Z_CHANNEL], ramp)
+    offset = _vertical_offset(joints[..., 2].numpy(), contacts, floor, fps, s) * root_free
     out[:, ROOT_Z_CHANNEL] = x[:, ROOT_Z_CHANNEL] + torch.from_numpy(offset)
     if given is not None:
         out = torch.where(mask.bool(), x, out)
