@@ -156,6 +156,10 @@ def test_foot_locking_stops_planted_feet_sliding():
     after = sliding_m_per_s(out, contacts)
     assert sliding_m_per_s(m, contacts) < 0.02 and before > 0.1
     assert after < before / 5
+    # holding feet adds no fast motion: the 99.9th percentile of joint speed does not rise
+    assert (
+        torch.quantile(joint_speeds(out).flatten(), 0.999) < torch.quantile(joint_speeds(drift).flatten(), 0.999) + 0.1
+    )
     # the legs were moved by IK, nothing else: the upper body is where it was
     upper = [3, 6, 9, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23]
     assert torch.allclose(joints(out)[:, upper, :2], joints(drift)[:, upper, :2], atol=1e-6)
@@ -208,3 +212,39 @@ def test_contacts_from_a_model_and_bad_inputs():
         clean_motion(m, FPS, 0.0, mask=torch.ones(5, 151))
     with pytest.raises(ValueError):
         FloorCleanup(max_air_seconds=-1.0)
+
+
+def test_two_bone_leg_ik_reaches_its_target():
+    """FK of the IK's rotations puts the ankle on the target and keeps the foot's orientation."""
+    from dgsdp.motion import axis_angle_to_matrix, forward_kinematics
+    from dgsdp.motion.floor import leg_ik
+
+    g = torch.Generator().manual_seed(3)
+    n = 64
+    rot = axis_angle_to_matrix(0.3 * torch.randn(n, 24, 3, generator=g, dtype=torch.float64))
+    rot[:, 4, :, :] = axis_angle_to_matrix(torch.tensor([0.8, 0.0, 0.0], dtype=torch.float64))  # a bent knee
+    root = torch.zeros(n, 3, dtype=torch.float64)
+    j, glob = forward_kinematics(rot, root, return_global_rotmats=True)
+    move = 0.06 * torch.randn(n, 3, generator=g, dtype=torch.float64)
+    target = j[:, 7] + move
+    hip, knee, ankle = leg_ik(glob[:, 0], glob[:, 1], glob[:, 4], glob[:, 7], j[:, 1], j[:, 4], j[:, 7], target)
+    new = rot.clone()
+    new[:, 1], new[:, 4], new[:, 7] = hip, knee, ankle
+    j2, glob2 = forward_kinematics(new, root, return_global_rotmats=True)
+    reach = (j[:, 4] - j[:, 1]).norm(dim=-1) + (j[:, 7] - j[:, 4]).norm(dim=-1)
+    within = (target - j[:, 1]).norm(dim=-1) < 0.95 * reach
+    assert within.sum() > n // 2
+    assert (j2[within, 7] - target[within]).norm(dim=-1).max() < 1e-3
+    assert torch.allclose(glob2[:, 7], glob[:, 7], atol=1e-9)  # the foot turns with nothing
+    assert torch.allclose(j2[:, 10] - j2[:, 7], j[:, 10] - j[:, 7], atol=1e-9)  # so the toe moves with the ankle
+    # the knee only bends about its hinge (x): no twist or sideways bend of the knee appears
+    rel = knee @ rot[:, 4].transpose(-1, -2)
+    assert torch.allclose(rel[:, 0, 0], torch.ones(n, dtype=torch.float64), atol=1e-9)
+    # an unreachable target straightens the leg towards it
+    far = j[:, 1] + 2.0 * (j[:, 7] - j[:, 1])
+    hip, knee, ankle = leg_ik(glob[:, 0], glob[:, 1], glob[:, 4], glob[:, 7], j[:, 1], j[:, 4], j[:, 7], far)
+    new[:, 1], new[:, 4], new[:, 7] = hip, knee, ankle
+    j3 = forward_kinematics(new, root)
+    assert ((j3[:, 7] - j3[:, 1]).norm(dim=-1) > 0.97 * reach).all()
+    cos = torch.nn.functional.cosine_similarity(j3[:, 7] - j3[:, 1], far - j[:, 1], dim=-1)
+    assert (cos > 0.999).all()
