@@ -76,6 +76,13 @@ def run_info(spec: RunSpec) -> dict[str, Any]:
     }
 
 
+def _cleanup(cfg: DictConfig) -> bool:
+    value = cfg.get("cleanup", False)
+    if not isinstance(value, bool):
+        raise ConfigError(f"cleanup must be true or false (feet on the floor before scoring), got {value!r}")
+    return value
+
+
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
     """Evaluate ``cfg.checkpoint`` under ``cfg.protocol``; write and log the results. Returns them and the paths."""
     if not cfg.get("checkpoint"):
@@ -88,6 +95,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     evaluator = Evaluator(
         generator, spec, data_root=root, cache_dir=cache, sampling=sampling, metrics_mode=cfg.metrics.mode,
         classifier_method=cfg.metrics.classifier, seed=int(cfg.seed), progress=bool(cfg.progress),
+        cleanup=_cleanup(cfg),
     )  # fmt: skip
     results = evaluator.run()
     results["checkpoint"] = str(Path(str(cfg.checkpoint)).expanduser().resolve())
@@ -98,6 +106,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
         "metrics": OmegaConf.to_container(cfg.metrics, resolve=True),
         "data": {"root": str(root), "cache_dir": str(cache)},
         "seed": int(cfg.seed),
+        "cleanup": _cleanup(cfg),
         "features": "y-up 60 FPS (linear interpolation of 30 FPS joints), PFC z-up 30 FPS",
     }
     loggers = [instantiate(lg) for lg in (cfg.get("logger") or {}).values() if lg and "_target_" in lg]

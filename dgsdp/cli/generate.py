@@ -119,6 +119,9 @@ def generate(cfg: DictConfig) -> GenerationReport:
     )
     plan = generator.resolve_style(cfg.style)
     edit = edit_settings(cfg, generator.fps)
+    cleanup = cfg.get("cleanup", True)
+    if not isinstance(cleanup, bool):
+        raise ConfigError(f"cleanup must be true or false (feet on the floor), got {cleanup!r}")
     num_samples = int(cfg.num_samples)
     if num_samples < 1:
         raise ConfigError(f"num_samples must be at least 1, got {num_samples}")
@@ -136,14 +139,16 @@ def generate(cfg: DictConfig) -> GenerationReport:
             motions = generator.dance_to_song(
                 song, plan, edit=edit, seconds=cfg.seconds, blend_seconds=float(cfg.schedule_blend_seconds),
                 num_samples=num_samples, sampling=sampling, seed=int(cfg.seed), progress=bool(cfg.progress),
+                cleanup=cleanup,
             )  # fmt: skip
             files: list[Path] = []
             for k, motion in enumerate(motions):
                 name = stem if num_samples == 1 else f"{stem}_sample{k}"
                 title = f"{song.stem} | {plan.text}" if plan.text else song.stem
                 files += write_motion(
-                    motion, out_dir / name, fps=generator.fps, audio_path=song, formats=formats, title=title
-                )
+                    motion, out_dir / name, fps=generator.fps, audio_path=song, formats=formats, title=title,
+                    floor_height=generator.floor_height,
+                )  # fmt: skip
             report.written[str(song)] = files
         except DgsdpError as e:
             log.error("%s: %s", song, e)

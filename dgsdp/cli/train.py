@@ -121,6 +121,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         _resume_logger_ids(cfg, resume)
     model = DanceDiffusion(spec)
     model.normalizer.load_state_dict(datamodule.normalizer.state_dict())
+    if getattr(datamodule, "floor_height", None) is not None:  # measured on the training motions (docs/floor.md)
+        model.set_floor_height(datamodule.floor_height)
     model.set_style_bank(bank)
     n_params = sum(p.numel() for p in model.denoiser.parameters())
     log.info("denoiser: %.2fM parameters", n_params / 1e6)

@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 from dgsdp.audio import AudioEncoder, FeatureCache, load_audio
 from dgsdp.data.aistpp import check_root, load_motion_pkl, music_path, parse_name, process_motion, read_split
 from dgsdp.errors import ConfigError, DataError, DgsdpError
-from dgsdp.motion import POSE_DIM, MinMaxNormalizer
+from dgsdp.motion import POSE_DIM, MinMaxNormalizer, measure_floor_height
 from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
 from dgsdp.utils.io import DiskCache, file_hash
 
@@ -337,6 +337,7 @@ class DanceDataModule(L.LightningDataModule):
         self.vocab = vocab
         self.progress = progress
         self.normalizer = MinMaxNormalizer(POSE_DIM)
+        self.floor_height: float | None = None  # z-up metres, measured on the training motions in setup()
         self._sequences: dict[str, list[Sequence]] = {}
         self.datasets: dict[str, WindowDataset] = {}
 
@@ -391,6 +392,9 @@ class DanceDataModule(L.LightningDataModule):
         train = self.sequences("train")
         if not bool(self.normalizer.fitted):
             self.normalizer.fit(torch.from_numpy(np.concatenate([s.motion for s in train])))
+        if self.floor_height is None:
+            self.floor_height = measure_floor_height([s.motion for s in train])
+            log.info("floor height of the training motions: %.3f m", self.floor_height)
         wanted = {
             "fit": ("train", "val"),
             "validate": ("val",),

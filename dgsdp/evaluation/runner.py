@@ -52,8 +52,10 @@ class Evaluator:
         classifier_method: str = "logistic",
         seed: int = 0,
         progress: bool = True,
+        cleanup: bool = False,
     ) -> None:
         self.generator = generator
+        self.cleanup = bool(cleanup)  # score the raw model (False) or its dances after the floor cleanup
         self.spec = spec
         self.sampling = sampling or SamplingSettings()
         self.seed = int(seed)
@@ -121,7 +123,10 @@ class Evaluator:
                 idx = self.source.subset(clips, trial)
                 chosen = [clips[i] for i in idx]
                 bar.set_postfix_str(f"{variant.name} trial {trial + 1}/{spec.trials}")
-                joints = sample_clips(self.generator, chosen, variant, spec, self.sampling, seed=self.seed, trial=trial)
+                joints = sample_clips(
+                    self.generator, chosen, variant, spec, self.sampling, seed=self.seed, trial=trial,
+                    cleanup=self.cleanup,
+                )  # fmt: skip
                 per_trial.append(
                     self.scorer.score(variant.name, joints, chosen, references[variant.seconds], classifier)
                 )

@@ -10,6 +10,7 @@ from dgsdp.evaluation.clips import Clip, clip_seed
 from dgsdp.evaluation.features import MODEL_FPS, motion_to_joints
 from dgsdp.evaluation.protocols import ProtocolSpec, Variant
 from dgsdp.generation import DanceGenerator, DanceRequest
+from dgsdp.motion import clean_motion
 from dgsdp.sampling import SamplingSettings
 
 
@@ -54,8 +55,11 @@ def sample_clips(
     *,
     seed: int,
     trial: int,
+    cleanup: bool = False,
 ) -> list[np.ndarray]:
-    """Generated dances for ``clips`` as 30 FPS z-up joints (T, 24, 3), with the variant's guidance weight."""
+    """Generated dances for ``clips`` as 30 FPS z-up joints (T, 24, 3), with the variant's guidance weight.
+    The model's raw output is scored unless ``cleanup`` puts the feet on the floor as generate.py does
+    (:func:`dgsdp.motion.clean_motion`, given channels kept)."""
     g = sampling.guidance
     settings = SamplingSettings(
         method=sampling.method, steps=sampling.steps, eta=sampling.eta,
@@ -63,5 +67,8 @@ def sample_clips(
         window_frames=sampling.window_frames, stride_frames=sampling.stride_frames, chunk_size=sampling.chunk_size,
         batch_size=sampling.batch_size, bf16=sampling.bf16,
     )  # fmt: skip
-    motions = generator.generate_many(clip_requests(generator, clips, variant, spec, seed=seed, trial=trial), settings)
+    requests = clip_requests(generator, clips, variant, spec, seed=seed, trial=trial)
+    motions = generator.generate_many(requests, settings)
+    if cleanup:
+        motions = [clean_motion(m, MODEL_FPS, generator.floor_height, mask=r.mask) for m, r in zip(motions, requests)]
     return [motion_to_joints(m[0].numpy()) for m in motions]

@@ -3,7 +3,11 @@
 The file holds ``smpl_poses`` (N, 72) axis-angle, ``smpl_trans`` (N, 3) metres, ``smpl_scaling`` (1,) = 1.0 (so
 ``smpl_trans / smpl_scaling`` is metres, as AIST++ readers compute), ``smpl_loss`` 0.0, plus ``joints3d``
 (N, 24, 3) y-up joint positions in metres from our fixed-skeleton forward kinematics (not the licensed SMPL body
-model) and ``fps``.
+model), ``fps`` and ``floor_height``.
+
+Floor: the pickle keeps the model's (the training data's) coordinates, so that it reads back as the same motion
+(e.g. as the given motion of an edit); ``floor_height`` records where the run's floor is: the plane y =
+``floor_height`` (metres). The files for viewing (BVH, GLB, video) instead show that floor at height 0 or draw it.
 
 Frame rate: the motion is written at its own rate (30 FPS for generated motions), without resampling, and ``fps``
 records it. AIST++'s own files are 60 FPS, so a reader that assumes 60 FPS must be told: the project's reader
@@ -57,13 +61,19 @@ def skeleton_motion(
     root_trans: torch.Tensor | np.ndarray,
     fps: float,
     offsets: torch.Tensor | np.ndarray | None = None,
+    floor_height: float = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
     """:func:`as_motion` plus the frame rate and the skeleton's rest offsets (24, 3) metres (default SMPL's), checked
     for the exporters that write a skeleton; the root's offset is 0 (its position is the translation itself, as in
-    our forward kinematics)."""
+    our forward kinematics). The root translation comes back shifted down by ``floor_height`` (z-up metres), so that
+    the run's floor lies at height 0 in the exported file."""
     if not fps > 0:
         raise DataError(f"fps must be positive, got {fps}")
+    if not np.isfinite(floor_height):
+        raise DataError(f"the floor height must be a finite number of metres, got {floor_height}")
     rot, trans = as_motion(rotmats, root_trans)
+    trans = trans.clone()
+    trans[:, 2] -= float(floor_height)
     if offsets is None:
         offsets = rest_offsets(dtype=torch.float64)
     offs = torch.as_tensor(offsets).detach().to("cpu", torch.float64).numpy().copy()
@@ -74,9 +84,15 @@ def skeleton_motion(
 
 
 def motion_to_aistpp(
-    rotmats: torch.Tensor | np.ndarray, root_trans: torch.Tensor | np.ndarray, fps: float = 30
+    rotmats: torch.Tensor | np.ndarray,
+    root_trans: torch.Tensor | np.ndarray,
+    fps: float = 30,
+    floor_height: float = 0.0,
 ) -> dict[str, np.ndarray | float]:
-    """The AIST++ motion dict of a z-up motion (rotmats (T, 24, 3, 3), root_trans (T, 3) metres), y-up."""
+    """The AIST++ motion dict of a z-up motion (rotmats (T, 24, 3, 3), root_trans (T, 3) metres), y-up, in the
+    motion's own coordinates; ``floor_height`` (metres) is recorded, not applied."""
+    if not np.isfinite(floor_height):
+        raise DataError(f"the floor height must be a finite number of metres, got {floor_height}")
     rot, trans = as_motion(rotmats, root_trans)
     joints_y_up = points_z_up_to_y_up(forward_kinematics(rot, trans))
     rot_y_up = rot.clone()
@@ -89,6 +105,7 @@ def motion_to_aistpp(
         "smpl_loss": 0.0,
         "joints3d": joints_y_up.numpy().astype(np.float32),
         "fps": float(fps),
+        "floor_height": float(floor_height),
     }
 
 
@@ -97,12 +114,14 @@ def save_aistpp_pkl(
     rotmats: torch.Tensor | np.ndarray,
     root_trans: torch.Tensor | np.ndarray,
     fps: float = 30,
+    floor_height: float = 0.0,
 ) -> Path:
     """Write a z-up motion (rotmats (T, 24, 3, 3) local rotations, root_trans (T, 3) metres, at ``fps``) as an
-    AIST++ y-up motion pickle at the same frame rate; atomic (no half-written file). Returns the path."""
+    AIST++ y-up motion pickle at the same frame rate, recording the run's ``floor_height``; atomic (no half-written
+    file). Returns the path."""
     if fps <= 0:
         raise DataError(f"fps must be positive, got {fps}")
-    data = motion_to_aistpp(rotmats, root_trans, fps)
+    data = motion_to_aistpp(rotmats, root_trans, fps, floor_height)
     path = Path(path)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:

@@ -16,6 +16,9 @@ shifted by 360 degrees, which leaves the rotation unchanged) so that curves do n
 The motion comes in the project's z-up world and is converted to y-up: the root orientation is pre-multiplied by
 the z-up -> y-up rotation and the root position mapped (x, y, z) -> (x, z, -y); local joint rotations are unchanged
 (the offsets already live in the y-up rest frame).
+
+Floor: the run's floor (``floor_height``, z-up metres, see :mod:`dgsdp.motion.floor`) is put at y = 0, the ground
+plane of Blender and other tools: the root position is shifted down by it. Jumps keep their height above it.
 """
 
 from __future__ import annotations
@@ -102,12 +105,14 @@ def bvh_text(
     fps: float = 30,
     offsets: torch.Tensor | np.ndarray | None = None,
     units: str = "m",
+    floor_height: float = 0.0,
 ) -> str:
     """The BVH file contents for a z-up motion (rotmats (T, 24, 3, 3), root_trans (T, 3) metres); see the module
-    docstring for axes, units and channels. ``offsets``: (24, 3) rest offsets in metres, y-up (default SMPL's)."""
+    docstring for axes, units, channels and the floor. ``offsets``: (24, 3) rest offsets in metres, y-up (default
+    SMPL's); ``floor_height``: the run's floor (z-up metres), written at y = 0."""
     if units not in UNIT_SCALE:
         raise DataError(f"BVH units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
-    rot, trans, offs = skeleton_motion(rotmats, root_trans, fps, offsets)
+    rot, trans, offs = skeleton_motion(rotmats, root_trans, fps, offsets, floor_height)
     scale = UNIT_SCALE[units]
 
     rot = rot.clone()
@@ -130,9 +135,12 @@ def save_bvh(
     fps: float = 30,
     offsets: torch.Tensor | np.ndarray | None = None,
     units: str = "m",
+    floor_height: float = 0.0,
 ) -> Path:
     """Write a z-up motion (rotmats (T, 24, 3, 3) local rotations, root_trans (T, 3) metres, at ``fps``) as a
-    y-up BVH file (atomic). ``units`` is ``"m"`` (Blender at scale 1.0) or ``"cm"``. Returns the path."""
+    y-up BVH file (atomic) with the run's floor (``floor_height``, z-up metres) at y = 0. ``units`` is ``"m"``
+    (Blender at scale 1.0) or ``"cm"``. Returns the path."""
     path = Path(path)
-    atomic_write_text(path, bvh_text(rotmats, root_trans, fps=fps, offsets=offsets, units=units))
+    text = bvh_text(rotmats, root_trans, fps=fps, offsets=offsets, units=units, floor_height=floor_height)
+    atomic_write_text(path, text)
     return path

@@ -8,9 +8,11 @@ What the file holds (glTF 2.0, y-up, metres, one scene):
 - ``body``: a low-poly mesh of capsules, one per bone (from a joint to each child; feet, hands and head get a short
   capsule or a sphere continuing them), each skinned rigidly (weight 1) to the joint that moves it, so any viewer
   shows a body. Left side blue, right side red, centre grey, as in the stick-figure videos.
-- ``floor``: an unskinned square at y = 0 under the whole dance. The floor is the dataset's floor (z = 0 in the
-  project's z-up motion), not the lowest joint of each frame: the motion is converted to y-up as it is (z = 0
-  becomes y = 0) without moving the root, so a dancer who jumps leaves the floor in the file too.
+- ``floor``: an unskinned square at y = 0 under the whole dance. The floor is the run's floor (``floor_height``,
+  z-up metres, the height of the training data's floor: see :mod:`dgsdp.motion.floor`), not the lowest joint of
+  each frame: the motion is shifted down by ``floor_height`` (the same for every frame, so the run's floor
+  becomes y = 0) and converted to y-up, so a dancer who jumps leaves the floor in the file too. BVH files follow
+  the same rule.
 - One animation, ``dance``: for N frames at ``fps`` the keyframe times are ``i / fps`` for i = 0 .. N - 1 (the
   animation lasts (N - 1) / fps seconds), with a rotation channel for every joint (unit quaternions, x y z w, signs
   kept continuous) and a translation channel for the root (``pelvis``), LINEAR interpolation. The animation's
@@ -194,16 +196,17 @@ def gltf_document(
     root_trans: torch.Tensor | np.ndarray,
     fps: float = 30,
     offsets: torch.Tensor | np.ndarray | None = None,
+    floor_height: float = 0.0,
 ) -> gl.GLTF2:
     """The glTF document (binary blob attached) of a z-up motion: rotmats (T, 24, 3, 3) local rotations,
-    root_trans (T, 3) metres, at ``fps``; see the module docstring for its contents."""
-    rot, trans, offs = skeleton_motion(rotmats, root_trans, fps, offsets)
+    root_trans (T, 3) metres, at ``fps``, its floor at ``floor_height``; see the module docstring."""
+    rot, trans, offs = skeleton_motion(rotmats, root_trans, fps, offsets, floor_height)
     n_frames = rot.shape[0]
 
     rot = rot.clone()
     rot[:, 0] = root_rotation_z_up_to_y_up(rot[:, 0])
     quats = _continuous(matrix_to_quaternion(rot).numpy())  # (T, 24, 4) x y z w
-    position = points_z_up_to_y_up(trans).numpy()  # (T, 3), floor at y = 0
+    position = points_z_up_to_y_up(trans).numpy()  # (T, 3), the run's floor at y = 0
     bind = rest_joint_positions(offs)
 
     gltf = gl.GLTF2(asset=gl.Asset(version="2.0", generator="dgsdp"))
@@ -315,10 +318,12 @@ def save_glb(
     root_trans: torch.Tensor | np.ndarray,
     fps: float = 30,
     offsets: torch.Tensor | np.ndarray | None = None,
+    floor_height: float = 0.0,
 ) -> Path:
     """Write a z-up motion (rotmats (T, 24, 3, 3) local rotations, root_trans (T, 3) metres, at ``fps``) as a
-    y-up binary glTF (.glb) with a skinned body, a floor at y = 0 and one animation (atomic). Returns the path."""
+    y-up binary glTF (.glb) with a skinned body, the run's floor (``floor_height``, z-up metres) as a square at
+    y = 0 and one animation (atomic). Returns the path."""
     path = Path(path)
-    gltf = gltf_document(rotmats, root_trans, fps=fps, offsets=offsets)
+    gltf = gltf_document(rotmats, root_trans, fps=fps, offsets=offsets, floor_height=floor_height)
     atomic_write_bytes(path, b"".join(gltf.save_to_bytes()))
     return path

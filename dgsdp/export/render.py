@@ -4,7 +4,8 @@ The view is an orthographic camera (``Camera``) that follows the dancer: each fr
 horizontal position smoothed over time (a zero-lag Gaussian of ``FOLLOW_SMOOTH_SECONDS``), at one height and one
 zoom for the whole video, chosen so that every joint of every frame stays in view (``follow_cameras``). Pass a
 ``Camera`` (for example from ``fit_camera``) for a fixed view instead. The floor grid is drawn at the true floor,
-z = 0 (the dataset's floor), not at the lowest joint, so jumps leave the floor. Joints are z-up metres (FK output).
+``floor_z`` (the run's floor height, :mod:`dgsdp.motion.floor`; 0 for the synthetic data), not at the lowest joint,
+so jumps leave the floor and joints below it show. Joints are z-up metres (FK output).
 Bones are coloured by side: left blue, right red, centre grey, and drawn far to near. A title is wrapped onto
 lines, and shrunk if needed, so that it fits the image width.
 
@@ -442,8 +443,10 @@ def render_video(
     camera: Camera | None = None,
     azimuth_deg: float = 20.0,
     elevation_deg: float = 15.0,
+    floor_z: float = 0.0,
 ) -> Path:
-    """Render joints (T, 24, 3), z-up metres at ``fps``, as a stick-figure video of T frames; returns the path.
+    """Render joints (T, 24, 3), z-up metres at ``fps``, as a stick-figure video of T frames, its floor grid at
+    height ``floor_z`` (the run's floor); returns the path.
 
     With ffmpeg: an mp4 (H.264, yuv420p) with the music at ``audio_path`` cut to the motion's duration and muxed
     as AAC (see the module docstring). Without ffmpeg, or when ``path`` ends in ``.gif``: a silent GIF next to
@@ -460,7 +463,12 @@ def render_video(
     if motion.ndim != 3:
         raise DataError(f"render_video needs a motion (T, 24, 3), got shape {motion.shape}")
     size = _check_size(size)
-    cameras = [camera] * len(motion) if camera is not None else follow_cameras(motion, fps, azimuth_deg, elevation_deg)
+    if not math.isfinite(floor_z):
+        raise ConfigError(f"the floor height must be a finite number of metres, got {floor_z}")
+    if camera is not None:
+        cameras = [camera] * len(motion)
+    else:
+        cameras = follow_cameras(motion, fps, azimuth_deg, elevation_deg, floor_z=floor_z)
     frames = _frames(motion, cameras, size, title)
 
     if suffix == ".gif" or not ffmpeg_available():

@@ -24,7 +24,7 @@ from dgsdp.editing import build_mask, check_task, place_known
 from dgsdp.errors import AudioError, ConfigError
 from dgsdp.generation.longform import DanceRequest, sample_items
 from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styles
-from dgsdp.motion import POSE_DIM, pose_to_joints, unpack_pose
+from dgsdp.motion import POSE_DIM, FloorCleanup, clean_motion, pose_to_joints, unpack_pose
 from dgsdp.sampling import SamplingSettings
 from dgsdp.training.module import DanceDiffusion, load_checkpoint
 from dgsdp.utils.device import resolve_device
@@ -122,6 +122,11 @@ class DanceGenerator:
             device=resolve_device(device),
             max_song_seconds=max_song_seconds,
         )
+
+    @property
+    def floor_height(self) -> float:
+        """The floor of the run's training data (z-up metres; 0.0 for checkpoints from before it was stored)."""
+        return float(self.model.floor_height)
 
     # --- conditioning ---------------------------------------------------------------------------------------
     @property
@@ -279,16 +284,23 @@ class DanceGenerator:
         sampling: SamplingSettings | None = None,
         seed: int | None = 0,
         progress: bool = False,
+        cleanup: bool | FloorCleanup = True,
     ) -> torch.Tensor:
         """Motions (num_samples, T, 151) danced to a whole song (or its first ``seconds``) in a resolved style,
-        with an optional editing task: music features, style per frame, editing mask, then :meth:`generate`."""
+        with an optional editing task: music features, style per frame, editing mask, then :meth:`generate`.
+        ``cleanup`` puts the feet on the run's floor (:func:`dgsdp.motion.clean_motion`; given channels of an edit
+        are kept exactly); False returns the model's raw output."""
         music, n_frames = self.music_features(song, seconds)
         style = self.style_frames(plan, n_frames, blend_seconds)
         mask, known = self.edit_inputs(edit or EditSettings(), n_frames)
-        return self.generate(
+        motions = self.generate(
             n_frames, music=music, style=style, mask=mask, known=known, num_samples=num_samples,
             sampling=sampling, seed=seed, progress=progress,
         )  # fmt: skip
+        if cleanup is False:
+            return motions
+        settings = cleanup if isinstance(cleanup, FloorCleanup) else None
+        return clean_motion(motions, self.fps, self.floor_height, mask=mask, settings=settings)
 
     def generate(
         self,
@@ -316,8 +328,13 @@ def write_motion(
     audio_path: Path | None = None,
     formats: Sequence[str] = ("pkl", "bvh", "video", "npy"),
     title: str | None = None,
+    floor_height: float = 0.0,
 ) -> list[Path]:
-    """Write one motion (T, 151), unnormalised, as ``base`` + .pkl (AIST++), .bvh, .glb, .mp4/.gif and .npy."""
+    """Write one motion (T, 151), unnormalised, as ``base`` + .pkl (AIST++), .bvh, .glb, .mp4/.gif and .npy.
+
+    ``floor_height``: the run's floor (z-up metres, :attr:`DanceGenerator.floor_height`). The data files (.npy, .pkl)
+    keep the model's coordinates (the pickle records the floor height); the files for viewing show the true floor:
+    BVH and GLB are shifted so that it lies at height 0, the video draws its grid at it."""
     from dgsdp.export import check_formats, render_video, save_aistpp_pkl, save_bvh, save_glb
 
     if motion.ndim != 2 or motion.shape[-1] != POSE_DIM:
@@ -332,12 +349,18 @@ def write_motion(
             np.save(f, motion.numpy().astype(np.float32))
         written.append(path)
     if "pkl" in formats:
-        written.append(save_aistpp_pkl(base.with_suffix(".pkl"), parts.rotmats, parts.root_trans, fps))
+        written.append(save_aistpp_pkl(base.with_suffix(".pkl"), parts.rotmats, parts.root_trans, fps, floor_height))
     if "bvh" in formats:
-        written.append(save_bvh(base.with_suffix(".bvh"), parts.rotmats, parts.root_trans, fps))
+        written.append(
+            save_bvh(base.with_suffix(".bvh"), parts.rotmats, parts.root_trans, fps, floor_height=floor_height)
+        )
     if "glb" in formats:
-        written.append(save_glb(base.with_suffix(".glb"), parts.rotmats, parts.root_trans, fps))
+        written.append(
+            save_glb(base.with_suffix(".glb"), parts.rotmats, parts.root_trans, fps, floor_height=floor_height)
+        )
     if "video" in formats:
         joints = pose_to_joints(motion.double()).float()
-        written.append(render_video(base.with_suffix(".mp4"), joints, fps, audio_path, title=title))
+        written.append(
+            render_video(base.with_suffix(".mp4"), joints, fps, audio_path, title=title, floor_z=floor_height)
+        )
     return written

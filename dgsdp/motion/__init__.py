@@ -10,6 +10,7 @@ from dgsdp.motion.axes import (
     root_rotation_z_up_to_y_up,
 )
 from dgsdp.motion.fk import forward_kinematics
+from dgsdp.motion.floor import FloorCleanup, clean_motion, lowest_foot_height, measure_floor_height
 from dgsdp.motion.normalizer import MinMaxNormalizer
 from dgsdp.motion.representation import (
     POSE_DIM,
@@ -46,7 +47,8 @@ from dgsdp.motion.skeleton import (
 
 __all__ = [
     "FOOT_JOINTS", "JOINT_NAMES", "LOWER_BODY_JOINTS", "NUM_JOINTS", "PARENTS", "POSE_DIM", "UPPER_BODY_JOINTS",
-    "MinMaxNormalizer", "PoseParts", "axis_angle_to_matrix", "axis_angle_to_quaternion", "channels_for_joints",
+    "FloorCleanup", "MinMaxNormalizer", "PoseParts", "axis_angle_to_matrix", "clean_motion", "lowest_foot_height",
+    "measure_floor_height", "axis_angle_to_quaternion", "channels_for_joints",
     "foot_contacts", "forward_kinematics", "joint_index", "matrix_slerp", "matrix_to_6d", "matrix_to_axis_angle",
     "matrix_to_quaternion", "pack_pose", "points_y_up_to_z_up", "points_z_up_to_y_up", "pose_to_joints",
     "quaternion_slerp", "quaternion_to_axis_angle", "quaternion_to_matrix", "rest_offsets",

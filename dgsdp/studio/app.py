@@ -271,14 +271,14 @@ class Studio:
         return value, [str(f) for f in dance.files], state, status
 
     def on_generate(
-        self, song, checkpoint, genre, free_text, rows, music_w, style_w, sampler, steps, seed, video,
+        self, song, checkpoint, genre, free_text, rows, music_w, style_w, sampler, steps, seed, video, cleanup=True,
         progress=gr.Progress(track_tqdm=True),
     ):  # fmt: skip
         try:
             request = eng.DanceRequest(
                 checkpoint=str(checkpoint or ""), song=self.check_song(song),
                 style=style_text(genre, free_text, rows), music_weight=float(music_w), style_weight=float(style_w),
-                sampler=str(sampler), steps=int(steps), seed=int(seed), video=bool(video),
+                sampler=str(sampler), steps=int(steps), seed=int(seed), video=bool(video), cleanup=bool(cleanup),
             )  # fmt: skip
             return self.run(request, progress)
         except DgsdpError as e:
@@ -286,7 +286,8 @@ class Studio:
 
     def on_edit(
         self, current, song, checkpoint, genre, free_text, rows, music_w, style_w, sampler, steps, seed, video,
-        edit_label, keyframe_text, seed_seconds, range_start, range_end, progress=gr.Progress(track_tqdm=True),
+        edit_label, keyframe_text, seed_seconds, range_start, range_end, cleanup=True,
+        progress=gr.Progress(track_tqdm=True),
     ):  # fmt: skip
         try:
             if not current:
@@ -305,7 +306,7 @@ class Studio:
             request = eng.DanceRequest(
                 checkpoint=str(checkpoint or ""), song=target_song, style=style_text(genre, free_text, rows),
                 music_weight=float(music_w), style_weight=float(style_w), sampler=str(sampler), steps=int(steps),
-                seed=int(seed), video=bool(video), edit=edit,
+                seed=int(seed), video=bool(video), edit=edit, cleanup=bool(cleanup),
             )  # fmt: skip
             return self.run(request, progress)
         except DgsdpError as e:
@@ -358,6 +359,7 @@ def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[g
                                       elem_id="steps")  # fmt: skip
                     seed = gr.Number(value=0, precision=0, label="Seed")
                     video = gr.Checkbox(value=True, label="Render an mp4 video")
+                    cleanup = gr.Checkbox(value=True, label="Feet on the floor (contact cleanup)", elem_id="cleanup")
                 generate = gr.Button("Generate", variant="primary", elem_id="generate")
             with gr.Column(scale=3, min_width=420):
                 viewer = gr.HTML(
@@ -387,10 +389,12 @@ def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[g
         checkpoint.change(studio.on_checkpoint, [checkpoint, genre], [genre, model_status],
                           concurrency_id="model", concurrency_limit=1)  # fmt: skip
         demo.load(studio.on_checkpoint, [checkpoint, genre], [genre, model_status], concurrency_id="model")
-        generate.click(studio.on_generate, [song, *settings], outputs, concurrency_id="model", concurrency_limit=1)
+        generate.click(
+            studio.on_generate, [song, *settings, cleanup], outputs, concurrency_id="model", concurrency_limit=1
+        )
         apply_edit.click(
             studio.on_edit,
-            [current, song, *settings, edit_kind, keyframes, seed_seconds, range_start, range_end],
+            [current, song, *settings, edit_kind, keyframes, seed_seconds, range_start, range_end, cleanup],
             outputs,
             concurrency_id="model",
             concurrency_limit=1,

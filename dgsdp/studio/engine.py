@@ -74,6 +74,7 @@ class DanceRequest:
     blend_seconds: float = 2.0
     edit: Edit | None = None
     video: bool = True
+    cleanup: bool = True  # feet on the floor (dgsdp.motion.floor); False: the model's raw output
 
 
 @dataclass
@@ -135,7 +136,7 @@ class Engine:
         edit = edit_settings(request.edit, n_frames, gen.fps)
         motion = gen.dance_to_song(
             request.song, plan, edit=edit, blend_seconds=float(request.blend_seconds), sampling=sampling,
-            seed=int(request.seed), progress=progress,
+            seed=int(request.seed), progress=progress, cleanup=bool(request.cleanup),
         )[0]  # fmt: skip
         title = f"{request.song.stem} | {plan.text}" if plan.text else request.song.stem
         files = write_motion(
@@ -145,6 +146,7 @@ class Engine:
             audio_path=request.song,
             formats=output_formats(request.video),
             title=title,
+            floor_height=gen.floor_height,
         )
         joints = pose_to_joints(motion.double()).float().numpy()
         return Dance(motion, joints, gen.fps, request.song, plan.text, files)

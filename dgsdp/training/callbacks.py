@@ -48,10 +48,11 @@ class SampleRenderCallback(L.Callback):
             pl_module, cache_dir=trainer.datamodule.cache_dir, device=pl_module.device, trusted=True
         )
         motion = torch.cat(generator.generate_many(requests, SamplingSettings(steps=self.sampling_steps)))
-        self.write(Path(trainer.default_root_dir) / "samples" / f"epoch{trainer.current_epoch:04d}", motion)
+        folder = Path(trainer.default_root_dir) / "samples" / f"epoch{trainer.current_epoch:04d}"
+        self.write(folder, motion, floor_z=float(pl_module.floor_height))
 
     @staticmethod
-    def write(folder: Path, motion: torch.Tensor) -> None:
+    def write(folder: Path, motion: torch.Tensor, floor_z: float = 0.0) -> None:
         from dgsdp.motion import pose_to_joints
 
         folder.mkdir(parents=True, exist_ok=True)
@@ -61,7 +62,7 @@ class SampleRenderCallback(L.Callback):
             try:
                 from dgsdp.export import render_video
 
-                render_video(folder / f"sample{i}.mp4", j)
+                render_video(folder / f"sample{i}.mp4", j, floor_z=floor_z)
             except ImportError:  # rendering is optional for this hook
                 pass
         log.info("wrote %d samples to %s", len(joints), folder)

@@ -8,6 +8,7 @@ their configs are data: parts are built only from the project's registered class
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from dgsdp.style.embeddings import StyleBank
 from dgsdp.training.spec import RunSpec
 
 CHECKPOINT_FORMAT = 2
+MAX_FLOOR_M = 10.0  # a stored floor height further from z = 0 is refused as damaged data
 
 
 def plain(obj: Any) -> Any:
@@ -61,6 +63,9 @@ class DanceDiffusion(L.LightningModule):
         self.diffusion = spec.build_diffusion(source)
         self.loss_weights = spec.build_loss(source)
         self.normalizer = MinMaxNormalizer(POSE_DIM)
+        # The training data's floor (z-up metres, dgsdp.motion.floor); checkpoints written before it existed load 0.0.
+        self.register_buffer("floor_height", torch.tensor(0.0))
+        self.register_load_state_dict_pre_hook(_default_floor_height)
         self.register_buffer("style_vectors", torch.zeros(cond.style_bank_size, self.style_dim))
         self.register_buffer("style_genre_index", torch.zeros(cond.style_bank_size, dtype=torch.long))
         self.n_genres = cond.n_genres
@@ -77,6 +82,10 @@ class DanceDiffusion(L.LightningModule):
             )
         self.style_vectors.copy_(bank.vectors)
         self.style_genre_index.copy_(bank.genre_index)
+
+    def set_floor_height(self, metres: float) -> None:
+        """Store the floor height of the training data (z-up metres, see dgsdp.motion.floor)."""
+        self.floor_height.fill_(check_floor_height(metres, "the floor height"))
 
     @property
     def style_bank(self) -> StyleBank | None:
@@ -170,6 +179,26 @@ class DanceDiffusion(L.LightningModule):
         return Sampler(denoiser, self.diffusion, style_guidance=self.spec.conditioning.style_guidance)
 
 
+def check_floor_height(value: Any, where: str) -> float:
+    """A floor height as a float, or a ConfigError: a finite number within MAX_FLOOR_M of zero."""
+    if torch.is_tensor(value):
+        if value.numel() != 1 or not value.is_floating_point():
+            raise ConfigError(f"{where} must be one number, got a {value.dtype} tensor of shape {tuple(value.shape)}")
+        value = value.item()
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ConfigError(f"{where} must be a finite number of metres, got {value!r}")
+    if abs(value) > MAX_FLOOR_M:
+        raise ConfigError(f"{where} is {value} m; a floor more than {MAX_FLOOR_M:g} m from z = 0 is not a dance floor")
+    return float(value)
+
+
+def _default_floor_height(module: torch.nn.Module, state: dict[str, Any], prefix: str, *args: Any) -> None:
+    """Checkpoints written before the floor height was stored load with the model's current one (0.0 when new)."""
+    key = prefix + "floor_height"
+    if key not in state and isinstance(module, DanceDiffusion):
+        state[key] = module.floor_height.detach().clone()
+
+
 def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
     """A checkpoint file as plain data (tensors and builtins only), or one clear CheckpointError."""
     p = Path(path).expanduser()
@@ -207,6 +236,11 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     state = ckpt["state_dict"]
     if not isinstance(state, Mapping) or not all(torch.is_tensor(v) for v in state.values()):
         raise CheckpointError(f"checkpoint {source}: state_dict must map names to tensors")
+    if "floor_height" in state:
+        try:
+            check_floor_height(state["floor_height"], "its floor_height")
+        except ConfigError as e:
+            raise CheckpointError(f"checkpoint {source}: {e}; the file is damaged or not a dgsdp checkpoint") from e
     try:
         model.load_state_dict(state)
     except RuntimeError as e:

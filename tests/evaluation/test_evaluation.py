@@ -211,6 +211,22 @@ def test_masked_rows_keep_the_given_motion(trained_run):
         assert np.abs(j[40:] - real[40:]).max() > 1e-2  # the rest is generated
 
 
+def test_evaluation_scores_the_raw_model_unless_cleanup_is_on(trained_run):
+    ev = evaluator(trained_run, {"name": "t", "tasks": ["seed_motion"], "seed_frames": 20})
+    clips = ev.source.clips(ev.source.load_split("test"), 5.0)[:2]
+    variant = Variant(5.0, 2.0, "seed_motion", "seed_motion")
+    settings = SamplingSettings(steps=2)
+    raw = sample_clips(ev.generator, clips, variant, ev.spec, settings, seed=0, trial=0)
+    assert not ev.cleanup
+    cleaned = sample_clips(ev.generator, clips, variant, ev.spec, settings, seed=0, trial=0, cleanup=True)
+    floor = ev.generator.floor_height
+    for clip, r, c in zip(clips, raw, cleaned):
+        real = pose_to_joints(torch.from_numpy(clip.motion).double()).numpy()
+        np.testing.assert_allclose(c[:20], real[:20], atol=1e-4)  # the given frames stay given
+        assert c[40:, :, 2].min() >= floor - 0.01  # past the blend from the given frames: nothing below the floor
+        assert np.abs(c - r).max() > 0 or r[40:, :, 2].min() >= floor - 0.01
+
+
 def test_subsets_cover_every_genre(trained_run):
     ev = evaluator(trained_run, {"name": "t", "clips_per_trial": 10})
     clips = ev.source.clips(

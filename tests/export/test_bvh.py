@@ -147,3 +147,14 @@ def test_bad_input_raises(tmp_path, motion):
     with pytest.raises(DataError, match="offsets"):
         save_bvh(tmp_path / "a.bvh", rot, trans, offsets=torch.zeros(23, 3))
     assert not any(tmp_path.iterdir())
+
+
+def test_the_runs_floor_is_at_height_zero(tmp_path, motion):
+    """A run whose floor is 0.3 m up: the file is the same dance, lowered by 0.3 m (its floor at y = 0)."""
+    rot, trans = motion
+    path = save_bvh(tmp_path / "floor.bvh", rot, trans, fps=30, floor_height=0.3)
+    names, positions = bvh_fk(Bvh(path.read_text()))
+    ours = points_z_up_to_y_up(forward_kinematics(rot, trans)).numpy()[:, [JOINT_NAMES.index(n) for n in names]]
+    np.testing.assert_allclose(positions, ours - np.array([0.0, 0.3, 0.0]), atol=1e-5)
+    with pytest.raises(DataError, match="floor"):
+        save_bvh(tmp_path / "nan.bvh", rot, trans, floor_height=float("nan"))

@@ -39,7 +39,7 @@ def test_hand_worked_axes(tmp_path):
     path = save_aistpp_pkl(tmp_path / "m.pkl", rot, trans)
     with open(path, "rb") as f:
         data = pickle.load(f)
-    assert set(data) == {"smpl_poses", "smpl_trans", "smpl_scaling", "smpl_loss", "joints3d", "fps"}
+    assert set(data) == {"smpl_poses", "smpl_trans", "smpl_scaling", "smpl_loss", "joints3d", "fps", "floor_height"}
     assert data["smpl_poses"].shape == (2, 72) and data["joints3d"].shape == (2, 24, 3)
     np.testing.assert_allclose(data["smpl_scaling"], [1.0])
     assert data["smpl_loss"] == 0.0 and data["fps"] == 30.0
@@ -82,3 +82,28 @@ def test_bad_input_raises(tmp_path):
     with pytest.raises(DataError, match="NaN"):
         save_aistpp_pkl(tmp_path / "a.pkl", rot, trans)
     assert not any(tmp_path.iterdir())
+
+
+def test_write_motion_keeps_model_coordinates_in_data_files_and_the_floor_at_zero_in_views(tmp_path):
+    """The rule of write_motion: npy and pkl hold the model's coordinates (the pkl records the floor height), BVH
+    and GLB put the run's floor at y = 0."""
+    from bvh import Bvh
+    from motion_helpers import random_motion
+    from test_bvh import bvh_fk
+
+    from dgsdp.generation import write_motion
+    from dgsdp.motion import JOINT_NAMES, pose_to_joints
+
+    motion = random_motion(10)
+    motion[:, 6] += 1.0
+    files = write_motion(motion, tmp_path / "d", fps=30, formats=["npy", "pkl", "bvh"], floor_height=0.25)
+    by_suffix = {f.suffix: f for f in files}
+    np.testing.assert_array_equal(np.load(by_suffix[".npy"]), motion.numpy())
+    joints_y_up = points_z_up_to_y_up(pose_to_joints(motion.double())).numpy()
+    with open(by_suffix[".pkl"], "rb") as f:
+        data = pickle.load(f)
+    assert data["floor_height"] == 0.25
+    np.testing.assert_allclose(data["joints3d"], joints_y_up, atol=1e-5)
+    names, positions = bvh_fk(Bvh(by_suffix[".bvh"].read_text()))
+    expected = joints_y_up[:, [JOINT_NAMES.index(n) for n in names]] - np.array([0.0, 0.25, 0.0])
+    np.testing.assert_allclose(positions, expected, atol=1e-4)

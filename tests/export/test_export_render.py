@@ -205,7 +205,7 @@ def test_gif_fallback_without_ffmpeg(tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dance.gif", "song.wav"]
 
 
-# The floor: drawn at z = 0 (the dataset's floor), not at the lowest joint.
+# The floor: drawn at the run's floor (z = 0 for the synthetic data), not at the lowest joint.
 
 
 def lifted(height_m: float) -> np.ndarray:
@@ -257,24 +257,27 @@ def test_floor_grid_at_true_height_oblique_view():
 
 
 @needs_ffmpeg
-def test_video_frames_show_the_floor_at_true_height(tmp_path):
+@pytest.mark.parametrize("floor_z", [0.0, 0.6])
+def test_video_frames_show_the_floor_at_true_height(tmp_path, floor_z):
     """Through the whole mp4 path, following camera: a front view (the floor seen edge-on, one line) of a dance
-    0.8 m above the floor."""
+    0.8 m above the floor, the run's floor at ``floor_z``."""
     joints = dancing(20).numpy()
-    joints[..., 2] += 0.8
+    joints[..., 2] += 0.8 + floor_z
     size = (240, 240)
-    out = render_video(tmp_path / "dance.mp4", joints, fps=30, size=size, azimuth_deg=0.0, elevation_deg=0.0)
+    out = render_video(
+        tmp_path / "dance.mp4", joints, fps=30, size=size, azimuth_deg=0.0, elevation_deg=0.0, floor_z=floor_z
+    )
     raw = subprocess.run(
         ["ffmpeg", "-v", "error", "-i", str(out), "-f", "rawvideo", "-pix_fmt", "rgb24", "pipe:1"],
         check=True, capture_output=True,
     ).stdout  # fmt: skip
     frames = np.frombuffer(raw, np.uint8).reshape(-1, 240, 240, 3).astype(int)
     assert len(frames) == 20
-    cameras = render.follow_cameras(joints, fps=30, azimuth_deg=0.0, elevation_deg=0.0)
+    cameras = render.follow_cameras(joints, fps=30, azimuth_deg=0.0, elevation_deg=0.0, floor_z=floor_z)
     for t in (0, 10, 19):
         # Front view by hand: screen up is +z, the target's height at the image centre.
         scale, target_z = 240 / cameras[t].extent_m, cameras[t].target[2]
-        floor_row = round(120 + scale * target_z)
+        floor_row = round(120 + scale * (target_z - floor_z))
         lowest_row = round(120 - scale * (joints[t, :, 2].min() - target_z))
         grey_rows = [r for r in range(240) if np.mean(np.abs(frames[t, r] - 200).max(axis=-1) < 20) > 0.8]
         assert grey_rows and min(grey_rows) >= floor_row - 2 and max(grey_rows) <= floor_row + 2, (t, grey_rows)

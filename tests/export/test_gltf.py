@@ -252,3 +252,18 @@ def test_skinned_body_follows_the_animated_bones(written):
             skinned = (world[j] @ ibm[j] @ np.append(v, 1.0))[:3]
             far = max(far, distance_to_bones(skinned))
     assert far < 0.2  # capsules are at most 7.5 cm thick; the head sphere (10 cm) sits 7 cm above the head joint
+
+
+def test_the_runs_floor_is_the_floor_square(tmp_path):
+    """A run whose floor is 0.4 m up (z-up): the body is lowered by 0.4 m, so that floor is the square at y = 0."""
+    rot, trans = dance(6)
+    path = save_glb(tmp_path / "floor.glb", rot, trans, fps=30, floor_height=0.4)
+    gltf = pygltflib.GLTF2().load(str(path))
+    blob = gltf.binary_blob()
+    root_track = next(ch for ch in gltf.animations[0].channels if ch.target.path == "translation")
+    root = read_accessor(gltf, blob, gltf.animations[0].samplers[root_track.sampler].output)
+    t = trans.numpy()
+    np.testing.assert_allclose(root, np.stack((t[:, 0], t[:, 2] - 0.4, -t[:, 1]), axis=-1), atol=1e-6)
+    floor_node = next(n for n in gltf.nodes if n.name == "floor")
+    corners = read_accessor(gltf, blob, gltf.meshes[floor_node.mesh].primitives[0].attributes.POSITION)
+    np.testing.assert_array_equal(corners[:, 1], 0.0)

@@ -114,3 +114,22 @@ def test_command_line_exit_codes_and_messages(tmp_path, checkpoint, songs, repo_
     assert "1 song(s) failed" in run.stdout and "Cannot decode audio file" in run.stdout
     assert (tmp_path / "out" / "good.pkl").is_file() and (tmp_path / "out" / "good.npy").is_file()
     assert str(tmp_path / "out" / "good.pkl") in run.stdout  # where the files are
+
+
+def test_cleanup_is_on_by_default_and_switches_off(tmp_path, checkpoint, songs):
+    """generate.py writes the dance with its feet on the run's floor; cleanup=false writes the model's raw dance."""
+    import torch
+
+    from dgsdp.motion import clean_motion, pose_to_joints
+    from dgsdp.training import load_checkpoint
+
+    floor = float(load_checkpoint(checkpoint).floor_height)
+    cleaned = np.load(_first_motion(tmp_path, checkpoint, songs))
+    raw_cfg = gen_config(tmp_path / "raw", checkpoint, songs["good"], "formats=[npy]", "cleanup=false")
+    raw = np.load(generate(raw_cfg).written[str(songs["good"])][0])
+    np.testing.assert_allclose(cleaned, clean_motion(torch.from_numpy(raw), 30, floor).numpy(), atol=1e-5)
+    raw_low = pose_to_joints(torch.from_numpy(raw).double())[..., 2].min()
+    assert pose_to_joints(torch.from_numpy(cleaned).double())[..., 2].min() >= floor - 0.01
+    assert np.abs(cleaned - raw).max() > 1e-3 or raw_low >= floor - 0.01  # it did something, or had nothing to do
+    with pytest.raises(ConfigError, match="cleanup must be true or false"):
+        generate(gen_config(tmp_path, checkpoint, songs["good"], "cleanup=sometimes"))
