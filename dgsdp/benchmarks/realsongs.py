@@ -229,14 +229,6 @@ def dance_figures(
 
 
 # --- the run's facts ---------------------------------------------------------------------------------------------
-def floor_height(generator_or_spec: Any) -> float:
-    """The floor height (z, metres) of a checkpoint's run: its spec's stored ``floor_height`` when the run records
-    one, else 0.0 (the floor of AIST++ and the synthetic dataset, z-up)."""
-    spec = getattr(generator_or_spec, "spec", generator_or_spec)
-    value = getattr(spec, "floor_height", None)
-    return 0.0 if value is None else float(value)
-
-
 def training_figures(
     spec: Any,
     cache_dir: str | os.PathLike,
@@ -668,27 +660,20 @@ def run_benchmark(
     import torch
 
     from dgsdp.cli.config import compose_config
-    from dgsdp.cli.generate import edit_settings
-    from dgsdp.generation.pipeline import DanceGenerator, find_songs, write_motion
+    from dgsdp.cli.generate import GenerateJob
+    from dgsdp.generation.pipeline import find_songs, write_motion
     from dgsdp.motion import pose_to_joints
-    from dgsdp.sampling import SamplingSettings
 
     out = sys.stdout if out is None else out
     if not folder.is_dir():
         raise ConfigError(f"{folder} is not a folder of songs (build one with: python -m {__spec__.name} prepare DIR)")
     cfg = compose_config("generate", [f"checkpoint={checkpoint}", *overrides])
     songs = find_songs(str(folder))
-    sampling = SamplingSettings.from_config(cfg.sampling)
-    generator = DanceGenerator.from_checkpoint(
-        cfg.checkpoint,
-        cache_dir=cfg.paths.cache_dir,
-        device=str(cfg.device),
-        max_song_seconds=None if cfg.max_song_seconds is None else float(cfg.max_song_seconds),
-    )
-    edit = edit_settings(cfg, generator.fps)
+    job = GenerateJob.from_config(cfg)
+    generator, sampling = job.generator, job.sampling
     window = min(sampling.window_frames or generator.window, generator.model.denoiser.seq_len)
     stride = min(sampling.stride_frames, window)
-    floor = floor_height(generator) if floor_m is None else float(floor_m)
+    floor = generator.floor_height if floor_m is None else float(floor_m)
     reference, train_source = training_figures(
         generator.spec, cfg.paths.cache_dir, floor_m=floor, window=window, stride=stride
     )
@@ -730,11 +715,7 @@ def run_benchmark(
             beats = music_beats(song, cfg.paths.cache_dir)
             result.feature_seconds = time.perf_counter() - start
             start = time.perf_counter()
-            motions = generator.dance_to_song(
-                song, plans[song_style], edit=edit, seconds=cfg.seconds,
-                blend_seconds=float(cfg.schedule_blend_seconds), num_samples=1, sampling=sampling,
-                seed=int(cfg.seed), progress=bool(cfg.progress),
-            )  # fmt: skip
+            motions = job.dance(song, plans[song_style])
             result.dance_seconds = time.perf_counter() - start
             if motions_dir is not None:
                 write_motion(motions[0], motions_dir / song.stem, fps=generator.fps, formats=["npy"])

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import hydra
+import torch
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
@@ -24,7 +25,7 @@ from dgsdp.cli.train import run_main
 from dgsdp.editing import check_task, load_motion_file
 from dgsdp.errors import ConfigError, DgsdpError
 from dgsdp.export import check_formats
-from dgsdp.generation.pipeline import DanceGenerator, EditSettings, find_songs, write_motion
+from dgsdp.generation.pipeline import DanceGenerator, EditSettings, StylePlan, find_songs, write_motion
 from dgsdp.sampling import SamplingSettings
 
 log = logging.getLogger(__name__)
@@ -102,29 +103,64 @@ def _safe_name(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "song"
 
 
+@dataclass
+class GenerateJob:
+    """What a ``generate`` config asks for, checked: the model, and how to dance to each song. generate.py and the
+    real-song benchmark both dance through :meth:`dance`, so the benchmark measures exactly the default command."""
+
+    generator: DanceGenerator
+    sampling: SamplingSettings
+    edit: EditSettings
+    cleanup: bool
+    seconds: float | None
+    blend_seconds: float
+    num_samples: int
+    seed: int
+    progress: bool
+
+    @classmethod
+    def from_config(cls, cfg: DictConfig) -> GenerateJob:
+        if not cfg.get("checkpoint"):
+            raise ConfigError("give checkpoint=<path of a trained model's .ckpt file>")
+        sampling = SamplingSettings.from_config(cfg.sampling)
+        if cfg.seconds is not None and float(cfg.seconds) <= 0:
+            raise ConfigError(f"seconds must be positive (the length of song to dance to), got {cfg.seconds}")
+        cleanup = cfg.get("cleanup", True)
+        if not isinstance(cleanup, bool):
+            raise ConfigError(f"cleanup must be true or false (feet on the floor), got {cleanup!r}")
+        num_samples = int(cfg.num_samples)
+        if num_samples < 1:
+            raise ConfigError(f"num_samples must be at least 1, got {num_samples}")
+        generator = DanceGenerator.from_checkpoint(
+            cfg.checkpoint,
+            cache_dir=cfg.paths.cache_dir,
+            device=str(cfg.device),
+            max_song_seconds=None if cfg.max_song_seconds is None else float(cfg.max_song_seconds),
+        )
+        return cls(
+            generator, sampling, edit_settings(cfg, generator.fps), cleanup,
+            None if cfg.seconds is None else float(cfg.seconds), float(cfg.schedule_blend_seconds), num_samples,
+            int(cfg.seed), bool(cfg.progress),
+        )  # fmt: skip
+
+    def dance(self, song: Path, plan: StylePlan) -> torch.Tensor:
+        """The motions (num_samples, T, 151) for one song in a resolved style."""
+        return self.generator.dance_to_song(
+            song, plan, edit=self.edit, seconds=self.seconds, blend_seconds=self.blend_seconds,
+            num_samples=self.num_samples, sampling=self.sampling, seed=self.seed, progress=self.progress,
+            cleanup=self.cleanup,
+        )  # fmt: skip
+
+
 def generate(cfg: DictConfig) -> GenerationReport:
     """Run one generation job from a composed ``generate`` config; returns what was written and what failed."""
     if not cfg.get("checkpoint"):
         raise ConfigError("give checkpoint=<path of a trained model's .ckpt file>")
     songs = find_songs(as_list(cfg.music) if not isinstance(cfg.music, str) else cfg.music)
-    sampling = SamplingSettings.from_config(cfg.sampling)
     formats = check_formats([str(f) for f in as_list(cfg.formats) or []])
-    if cfg.seconds is not None and float(cfg.seconds) <= 0:
-        raise ConfigError(f"seconds must be positive (the length of song to dance to), got {cfg.seconds}")
-    generator = DanceGenerator.from_checkpoint(
-        cfg.checkpoint,
-        cache_dir=cfg.paths.cache_dir,
-        device=str(cfg.device),
-        max_song_seconds=None if cfg.max_song_seconds is None else float(cfg.max_song_seconds),
-    )
+    job = GenerateJob.from_config(cfg)
+    generator = job.generator
     plan = generator.resolve_style(cfg.style)
-    edit = edit_settings(cfg, generator.fps)
-    cleanup = cfg.get("cleanup", True)
-    if not isinstance(cleanup, bool):
-        raise ConfigError(f"cleanup must be true or false (feet on the floor), got {cleanup!r}")
-    num_samples = int(cfg.num_samples)
-    if num_samples < 1:
-        raise ConfigError(f"num_samples must be at least 1, got {num_samples}")
     out_dir = Path(cfg.output_dir).expanduser()
     report = GenerationReport()
     used: set[str] = set()
@@ -136,14 +172,10 @@ def generate(cfg: DictConfig) -> GenerationReport:
             stem += "_"
         used.add(stem)
         try:
-            motions = generator.dance_to_song(
-                song, plan, edit=edit, seconds=cfg.seconds, blend_seconds=float(cfg.schedule_blend_seconds),
-                num_samples=num_samples, sampling=sampling, seed=int(cfg.seed), progress=bool(cfg.progress),
-                cleanup=cleanup,
-            )  # fmt: skip
+            motions = job.dance(song, plan)
             files: list[Path] = []
             for k, motion in enumerate(motions):
-                name = stem if num_samples == 1 else f"{stem}_sample{k}"
+                name = stem if job.num_samples == 1 else f"{stem}_sample{k}"
                 title = f"{song.stem} | {plan.text}" if plan.text else song.stem
                 files += write_motion(
                     motion, out_dir / name, fps=generator.fps, audio_path=song, formats=formats, title=title,

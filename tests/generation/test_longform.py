@@ -8,6 +8,7 @@ from gen_helpers import AUDIO_DIM, random_motion
 
 from dgsdp.editing import build_mask
 from dgsdp.generation import WindowLayout, sample_long, share_overlaps, stitch_windows
+from dgsdp.generation.longform import fuse_overlaps, overlap_weights
 from dgsdp.motion import matrix_to_6d, pack_pose
 from dgsdp.sampling import Guidance
 
@@ -32,6 +33,40 @@ def test_share_overlaps_copies_second_half_into_next_first_half():
         assert torch.equal(v[0], w[0])
         assert torch.equal(v[1, :2], w[0, 2:]) and torch.equal(v[1, 2:], w[1, 2:])
         assert torch.equal(v[2, :2], w[1, 2:]) and torch.equal(v[2, 2:], w[2, 2:])
+
+
+def test_overlap_weights_of_half_overlapping_windows_sum_to_one():
+    w = overlap_weights(150, torch.float64)
+    torch.testing.assert_close(w[:75] + w[75:], torch.ones(75, dtype=torch.float64))
+    assert w.min() > 0 and w.max() <= 1
+
+
+def test_fuse_overlaps_is_the_weighted_mean_of_the_covering_windows():
+    length, stride, n = 6, 3, 3
+    x = torch.randn(2 * n, length, 2, dtype=torch.float64)  # 2 samples x 3 windows
+    y = fuse_overlaps(x, n_windows=n, stride=stride)
+    w = [math.sin(math.pi * (f + 0.5) / length) ** 2 for f in range(length)]
+    for s in range(2):
+        win = x[n * s : n * s + n]
+        out = y[n * s : n * s + n]
+        # frame 3 of the timeline: frame 3 of window 0 and frame 0 of window 1
+        expected = (w[3] * win[0, 3] + w[0] * win[1, 0]) / (w[3] + w[0])
+        torch.testing.assert_close(out[0, 3], expected)
+        torch.testing.assert_close(out[1, 0], expected)
+        # frames covered by one window keep their values (the first and last half windows)
+        torch.testing.assert_close(out[0, :stride], win[0, :stride])
+        torch.testing.assert_close(out[2, stride:], win[2, stride:])
+        # neighbours agree on their overlap afterwards, and fusing again changes nothing
+        torch.testing.assert_close(out[1, :stride], out[0, stride:])
+        torch.testing.assert_close(out[2, :stride], out[1, stride:])
+    torch.testing.assert_close(fuse_overlaps(y, n, stride), y)
+
+
+def test_fuse_overlaps_keeps_windows_cut_from_one_motion():
+    timeline = torch.randn(150 + 75 * 3, 4)
+    layout = WindowLayout(len(timeline), 150, 75)
+    windows = torch.stack([timeline[s : s + 150] for s in layout.starts()])
+    torch.testing.assert_close(fuse_overlaps(windows, layout.n_windows, 75), windows)
 
 
 def rot_z(angle: torch.Tensor) -> torch.Tensor:

@@ -127,13 +127,6 @@ def test_dance_figures_checks_follow_the_thresholds():
     assert not checks["floating"] and not checks["penetration"] and checks["seam"]
 
 
-def test_floor_height_from_the_run_with_zero_fallback():
-    assert rs.floor_height(SimpleNamespace(spec=SimpleNamespace())) == 0.0
-    assert rs.floor_height(SimpleNamespace(spec=SimpleNamespace(floor_height=0.07))) == pytest.approx(0.07)
-    assert rs.floor_height(SimpleNamespace(floor_height=-0.02)) == pytest.approx(-0.02)
-    assert rs.floor_height(SimpleNamespace(floor_height=None)) == 0.0
-
-
 def test_training_figures_without_the_training_data(tmp_path):
     figures, why = rs.training_figures(SimpleNamespace(record={"data": {"root": str(tmp_path / "gone")}}), tmp_path)
     assert figures is None and "not found" in why and "--train-speed" in why
