@@ -70,7 +70,7 @@ class LibrosaEncoder(AudioEncoder):
         beat_tightness: float = 100.0,
         use_music_id_tempo: bool = True,
         loudness_lufs: float | None = -23.0,
-        standardize: str = "none",
+        standardize: str = "mean_std",
         mfcc_fmax_hz: float | None = 3500.0,
     ) -> None:
         if sample_rate % hop_length != 0 or sample_rate // hop_length != self.fps:
