@@ -110,3 +110,24 @@ def test_settings_change_the_cache_key_and_are_checked():
     for bad in ({"loudness_lufs": 3.0}, {"standardize": "zscore"}, {"mfcc_fmax_hz": 20000.0}):
         with pytest.raises(ConfigError):
             LibrosaEncoder(**bad)
+
+
+def test_checkpoints_trained_before_normalisation_keep_their_features():
+    import dataclasses
+
+    from dgsdp.training import RunSpec
+
+    spec = RunSpec.from_groups(
+        model="small", audio_dim=35, style_dim=10, style_kind="onehot", style_bank_size=10, n_genres=10,
+        d_model=32, n_layers=1, n_heads=2, ff_dim=64, music_encoder_layers=1, dropout=0.0,
+    )  # fmt: skip
+    old_audio = {"_target_": "dgsdp.audio.LibrosaEncoder", "sample_rate": 15360, "use_music_id_tempo": True}
+    spec = dataclasses.replace(spec, audio=old_audio)
+    # A stored run without the new settings was trained without them ...
+    assert (
+        spec.build_audio_encoder("checkpoint").settings() == LibrosaEncoder(**LibrosaEncoder.legacy_settings).settings()
+    )
+    # ... while a new config gets the normalised default, and a stored setting wins over the legacy value.
+    assert spec.build_audio_encoder("config").settings() == LibrosaEncoder().settings()
+    stored = dataclasses.replace(spec, audio={**old_audio, "standardize": "mean"})
+    assert stored.build_audio_encoder("checkpoint").standardize == "mean"
