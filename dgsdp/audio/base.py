@@ -72,6 +72,9 @@ class AudioEncoder(abc.ABC):
     feature_dim: int
     sample_rate: int
     uses_music_id: ClassVar[bool] = False
+    # Settings added after runs were first trained, with the value those runs used: a checkpoint whose stored
+    # audio config lacks one was trained with that value (the constructor default may differ).
+    legacy_settings: ClassVar[dict[str, Any]] = {}
 
     @abc.abstractmethod
     def settings(self) -> dict[str, Any]:

@@ -13,7 +13,9 @@ import librosa
 import numpy as np
 
 from dgsdp.audio.base import AudioEncoder
+from dgsdp.audio.loudness import normalize_loudness
 from dgsdp.audio.tempo import tempo_from_music_id
+from dgsdp.errors import ConfigError
 from dgsdp.registry import register
 
 ENVELOPE_COLUMN = 0
@@ -22,6 +24,33 @@ CHROMA_COLUMNS = slice(21, 33)
 PEAK_COLUMN = 33
 BEAT_COLUMN = 34
 
+STANDARDIZE_MODES = ("none", "mean", "mean_std")
+_STD_FLOOR = 1e-3  # a column that does not move (silence) is centred, not blown up
+
+
+def standardize_song(features: np.ndarray, mode: str) -> np.ndarray:
+    """Per-song normalisation of the envelope and MFCC columns of ``(T, 35)`` features (a copy).
+
+    ``"mean"``: MFCCs minus their song mean (cepstral mean normalisation) and the envelope divided by its song
+    mean; ``"mean_std"``: both z-scored over the song. Chroma and the binary peak/beat columns are unchanged.
+    """
+    if mode == "none":
+        return features
+    out = features.copy()
+    mfcc = out[:, MFCC_COLUMNS]
+    env = out[:, ENVELOPE_COLUMN]
+    if mode == "mean":
+        out[:, MFCC_COLUMNS] = mfcc - mfcc.mean(axis=0, keepdims=True)
+        out[:, ENVELOPE_COLUMN] = env / max(float(env.mean()), _STD_FLOOR)
+    elif mode == "mean_std":
+        out[:, MFCC_COLUMNS] = (mfcc - mfcc.mean(axis=0, keepdims=True)) / np.maximum(
+            mfcc.std(axis=0, keepdims=True), _STD_FLOOR
+        )
+        out[:, ENVELOPE_COLUMN] = (env - env.mean()) / max(float(env.std()), _STD_FLOOR)
+    else:
+        raise ValueError(f"unknown standardize mode {mode!r}; choose from {', '.join(STANDARDIZE_MODES)}")
+    return out
+
 
 @register("audio", "dgsdp.audio.LibrosaEncoder")
 class LibrosaEncoder(AudioEncoder):
@@ -29,6 +58,8 @@ class LibrosaEncoder(AudioEncoder):
 
     name: ClassVar[str] = "librosa"
     uses_music_id: ClassVar[bool] = True
+    # Runs trained before the features were normalised stored no normalisation settings.
+    legacy_settings: ClassVar[dict[str, Any]] = {"loudness_lufs": None, "standardize": "none", "mfcc_fmax_hz": None}
 
     def __init__(
         self,
@@ -38,6 +69,9 @@ class LibrosaEncoder(AudioEncoder):
         n_chroma: int = 12,
         beat_tightness: float = 100.0,
         use_music_id_tempo: bool = True,
+        loudness_lufs: float | None = -23.0,
+        standardize: str = "mean_std",
+        mfcc_fmax_hz: float | None = 3500.0,
     ) -> None:
         if sample_rate % hop_length != 0 or sample_rate // hop_length != self.fps:
             raise ValueError(f"sample_rate / hop_length must equal {self.fps} FPS, got {sample_rate} / {hop_length}")
@@ -47,6 +81,15 @@ class LibrosaEncoder(AudioEncoder):
         self.n_chroma = int(n_chroma)
         self.beat_tightness = float(beat_tightness)
         self.use_music_id_tempo = bool(use_music_id_tempo)
+        if loudness_lufs is not None and not -70.0 < float(loudness_lufs) <= 0.0:
+            raise ConfigError(f"loudness_lufs must lie in (-70, 0] LUFS or be null (off), got {loudness_lufs}")
+        if standardize not in STANDARDIZE_MODES:
+            raise ConfigError(f"standardize must be one of {', '.join(STANDARDIZE_MODES)}, got {standardize!r}")
+        self.loudness_lufs = None if loudness_lufs is None else float(loudness_lufs)
+        self.standardize = str(standardize)
+        if mfcc_fmax_hz is not None and not 1000.0 <= float(mfcc_fmax_hz) <= sample_rate / 2:
+            raise ConfigError(f"mfcc_fmax_hz must lie in [1000, {sample_rate / 2:g}] Hz or be null, got {mfcc_fmax_hz}")
+        self.mfcc_fmax_hz = None if mfcc_fmax_hz is None else float(mfcc_fmax_hz)
         self.feature_dim = 1 + self.n_mfcc + self.n_chroma + 2
 
     def settings(self) -> dict[str, Any]:
@@ -57,6 +100,9 @@ class LibrosaEncoder(AudioEncoder):
             "n_chroma": self.n_chroma,
             "beat_tightness": self.beat_tightness,
             "use_music_id_tempo": self.use_music_id_tempo,
+            "loudness_lufs": self.loudness_lufs,
+            "standardize": self.standardize,
+            "mfcc_fmax_hz": self.mfcc_fmax_hz,
             "librosa": librosa.__version__,
         }
 
@@ -70,12 +116,14 @@ class LibrosaEncoder(AudioEncoder):
 
     def _encode(self, waveform: np.ndarray, music_id: str | None) -> np.ndarray:
         sr, hop = self.sample_rate, self.hop_length
+        if self.loudness_lufs is not None:
+            waveform = normalize_loudness(waveform, sr, self.loudness_lufs)
         with warnings.catch_warnings():
             # Short clips make librosa warn that n_fft exceeds the signal and silence that tuning is
             # undefined; both are handled (zero padding, default tuning) and expected here.
             warnings.simplefilter("ignore", UserWarning)
             envelope = librosa.onset.onset_strength(y=waveform, sr=sr, hop_length=hop)  # (T,)
-            mfcc = librosa.feature.mfcc(y=waveform, sr=sr, n_mfcc=self.n_mfcc, hop_length=hop).T
+            mfcc = librosa.feature.mfcc(y=waveform, sr=sr, n_mfcc=self.n_mfcc, hop_length=hop, fmax=self.mfcc_fmax_hz).T
             chroma = librosa.feature.chroma_cens(y=waveform, sr=sr, hop_length=hop, n_chroma=self.n_chroma).T
             peaks = librosa.onset.onset_detect(onset_envelope=envelope, sr=sr, hop_length=hop)
             start_bpm = self.start_bpm(music_id)
@@ -93,6 +141,7 @@ class LibrosaEncoder(AudioEncoder):
         peak_onehot[peaks[peaks < n]] = 1.0
         beat_onehot = np.zeros(n, dtype=np.float32)
         beat_onehot[beats[beats < n]] = 1.0
-        return np.concatenate(
+        features = np.concatenate(
             [envelope[:n, None], mfcc[:n], chroma[:n], peak_onehot[:, None], beat_onehot[:, None]], axis=1
         ).astype(np.float32)
+        return standardize_song(features, self.standardize)

@@ -31,7 +31,7 @@ from dgsdp.data.synthetic_music import synthesize_music, wav_bytes
 from dgsdp.errors import ConfigError, DataError
 from dgsdp.utils.io import atomic_write_bytes, atomic_write_text
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # 2: mastered music (loudness, limiting, clipping, timbre)
 MANIFEST = "synthetic.json"
 PARTIAL_MARKER = ".synthetic-partial"
 # AIST++ genre codes in the dataset's usual order.

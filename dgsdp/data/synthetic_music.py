@@ -4,16 +4,22 @@ Every beat carries a strong percussive hit, so a beat tracker finds the tempo th
 between the beats (ghost notes, off-beat hats, swung eighths) and the sounds themselves (kick pitch, snare colour,
 bass, chords) follow the genre. Sub-beat events are kept quiet and a soft noise bed sits under everything, so
 they never pull a tracker to double tempo.
+
+Each song is then mastered as real recordings are, with settings drawn per song: a loudness between -30 and
+-6 LUFS (BS.1770), clean, soft-limited or hard-clipped dynamics, a brighter or darker spectrum, a noise floor and
+a sustained distorted chord layer, so that features of the training music span what real songs give.
 """
 
 from __future__ import annotations
 
 import io
 import wave
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.signal import lfilter
+from scipy.signal import iirpeak, lfilter
+
+from dgsdp.audio.loudness import integrated_loudness
 
 
 @dataclass(frozen=True)
@@ -204,6 +210,111 @@ def _instrument_sounds(style: MusicStyle, sample_rate_hz: int, rng: np.random.Ge
     return sounds
 
 
+# Mastering of the synthetic songs, drawn per song so that the training music spans what real recordings do.
+LOUDNESS_RANGE_LUFS = (-30.0, -6.0)  # quiet ambient to loud modern masters (BS.1770 integrated loudness)
+DYNAMICS = ("clean", "limited", "clipped")
+DYNAMICS_PROBS = (0.4, 0.35, 0.25)
+TILT_HZ = 2000.0  # brightness: gain of everything above this, relative to below
+TILT_RANGE_DB = (-15.0, 9.0)
+EQ_RANGE_HZ = (150.0, 4000.0)  # one broad resonance (a room, a cabinet, a voice) boosted or cut
+EQ_RANGE_DB = (-9.0, 12.0)
+NOISE_RANGE = (0.001, 0.1)  # broadband noise (hiss, distortion, crowd) relative to full scale
+SUSTAIN_PROB = 0.5  # songs with a sustained, distorted chord layer (guitars, synths) filling the gaps
+SUSTAIN_RANGE = (0.05, 0.35)  # its level against the drums' peak
+LEAD_PROB = 0.6  # songs with a melody: one note per beat or two, from the key's pentatonic scale
+LEAD_RANGE = (0.1, 0.5)
+TRANSPOSE_RANGE = (-5, 6)  # semitones: the genre's key moved per song, so chroma covers every pitch class
+
+
+@dataclass(frozen=True)
+class Mastering:
+    """How one synthetic song is mixed and mastered after its instruments are played."""
+
+    loudness_lufs: float
+    dynamics: str  # "clean", "limited" (soft limiter, tanh) or "clipped" (driven into hard clipping)
+    drive_db: float  # gain into the limiter or the clipper
+    tilt_db: float  # spectral tilt above TILT_HZ: > 0 brighter, < 0 darker
+    noise: float
+    sustain: float
+    transpose: int = 0
+    lead: float = 0.0
+    lead_wave: str = "sine"
+    eq_hz: float = 1000.0
+    eq_db: float = 0.0
+
+
+def draw_mastering(rng: np.random.Generator) -> Mastering:
+    dynamics = str(rng.choice(DYNAMICS, p=DYNAMICS_PROBS))
+    return Mastering(
+        loudness_lufs=float(rng.uniform(*LOUDNESS_RANGE_LUFS)),
+        dynamics=dynamics,
+        drive_db=float(rng.uniform(3.0, 18.0)) if dynamics != "clean" else 0.0,
+        tilt_db=float(rng.uniform(*TILT_RANGE_DB)),
+        noise=float(np.exp(rng.uniform(*np.log(NOISE_RANGE)))),
+        sustain=float(rng.uniform(*SUSTAIN_RANGE)) if rng.random() < SUSTAIN_PROB else 0.0,
+        transpose=int(rng.integers(TRANSPOSE_RANGE[0], TRANSPOSE_RANGE[1] + 1)),
+        lead=float(rng.uniform(*LEAD_RANGE)) if rng.random() < LEAD_PROB else 0.0,
+        lead_wave=str(rng.choice(["sine", "triangle", "saw", "square"])),
+        eq_hz=float(np.exp(rng.uniform(*np.log(EQ_RANGE_HZ)))),
+        eq_db=float(rng.uniform(*EQ_RANGE_DB)),
+    )
+
+
+def _one_pole_lowpass(x: np.ndarray, cutoff_hz: float, sample_rate_hz: int) -> np.ndarray:
+    a = np.exp(-2 * np.pi * cutoff_hz / sample_rate_hz)
+    return lfilter([1 - a], [1, -a], x)
+
+
+def master(audio: np.ndarray, sample_rate_hz: int, m: Mastering, rng: np.random.Generator | None = None) -> np.ndarray:
+    """Colour, compress or clip ``audio`` (peak about 0.9) and set its loudness to ``m.loudness_lufs``.
+
+    Samples past full scale after the loudness gain are clipped, as a 16-bit master would be, so the loudest
+    songs measure a little below their target.
+    """
+    sr = sample_rate_hz
+    rng = rng if rng is not None else np.random.default_rng(0)
+    n = len(audio)
+    x = audio.astype(np.float64)
+    x = x + m.noise * rng.standard_normal(n)
+    low = _one_pole_lowpass(x, TILT_HZ, sr)
+    x = low + 10.0 ** (m.tilt_db / 20.0) * (x - low)
+    if m.eq_db != 0.0 and m.eq_hz < sr / 2:
+        b, a = iirpeak(m.eq_hz, 1.0, fs=sr)
+        x = x + (10.0 ** (m.eq_db / 20.0) - 1.0) * lfilter(b, a, x)
+    x = x / (np.abs(x).max() + 1e-12)
+    drive = 10.0 ** (m.drive_db / 20.0)
+    if m.dynamics == "limited":
+        x = np.tanh(drive * x)
+    elif m.dynamics == "clipped":
+        x = np.clip(drive * x, -1.0, 1.0)
+    loudness = integrated_loudness(x, sr)
+    if np.isfinite(loudness):
+        x = x * 10.0 ** ((m.loudness_lufs - loudness) / 20.0)
+    return np.clip(x, -1.0, 1.0)
+
+
+def _melody(
+    root_hz: float, kind: str, beat_times: np.ndarray, total: int, sample_rate_hz: int, rng: np.random.Generator
+) -> np.ndarray:
+    """A lead line: notes from the pentatonic scale over two octaves above ``root_hz``, each starting on a beat
+    (so it adds pitch and timbre, not off-beat onsets) and lasting one or two beats, with a little vibrato."""
+    sr = sample_rate_hz
+    scale = np.array([0, 2, 4, 7, 9, 12, 14, 16, 19, 21, 24])
+    freq = np.zeros(total)
+    env = np.zeros(total)
+    starts = [int(round(b * sr)) for b in beat_times[:: int(rng.integers(1, 3))]] + [total]
+    for begin, end in zip(starts[:-1], starts[1:], strict=False):
+        if begin >= total or rng.random() < 0.2:  # a rest now and then
+            continue
+        n = end - begin
+        freq[begin:end] = 2 * root_hz * 2.0 ** (rng.choice(scale) / 12)
+        k = np.arange(n) / sr
+        env[begin:end] = (1 - np.exp(-k / 0.02)) * np.exp(-k / float(rng.uniform(0.3, 2.0)))
+    t = np.arange(total) / sr
+    phase = np.cumsum(freq * (1 + 0.004 * np.sin(2 * np.pi * 5.5 * t))) / sr
+    return _wave(kind, phase) * env
+
+
 def beat_period_s(bpm: float) -> float:
     return 60.0 / bpm
 
@@ -216,13 +327,17 @@ def synthesize_music(
     first_beat_s: float,
     sample_rate_hz: int,
     rng: np.random.Generator,
+    mastering: Mastering | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """A genre's drum-machine loop at ``bpm``.
+    """A genre's drum-machine loop at ``bpm``, mixed and mastered (see :func:`master`).
 
     Returns audio (S,) float32 in [-1, 1] and the beat times (B,) in seconds: one beat every 60 / bpm seconds
-    from ``first_beat_s``. ``rng`` varies the sounds and the chord progression.
+    from ``first_beat_s``. ``rng`` varies the sounds, the chord progression and, unless ``mastering`` is given,
+    the mastering (loudness, dynamics, brightness, noise, a sustained layer: :func:`draw_mastering`).
     """
+    m = mastering if mastering is not None else draw_mastering(rng)
     style = MUSIC_STYLES[genre]
+    style = replace(style, root_hz=style.root_hz * 2.0 ** (m.transpose / 12))
     sr = sample_rate_hz
     total = int(round(seconds * sr))
     period_s = beat_period_s(bpm)
@@ -254,10 +369,17 @@ def synthesize_music(
     pad_phase = np.cumsum(root) / sr
     pad = sum(np.sin(2 * np.pi * k * pad_phase) for k in (1.0, 1.5, 2.0)) / 3
     out[:total] += style.pad_gain * pad * (1 - np.exp(-t / 0.5))
+    if m.sustain > 0:
+        # A distorted power chord (root, fifth, octave) following the pad: sustained energy between the hits.
+        chord = sum(_wave("saw", k * pad_phase) for k in (0.5, 0.75, 1.0))
+        out[:total] += m.sustain * np.tanh(2.0 * chord) * (1 - np.exp(-t / 0.3))
+    if m.lead > 0:
+        out[:total] += m.lead * _melody(style.root_hz, m.lead_wave, beat_times, total, sr, rng)
     out[:total] += 0.015 * _bandpass_noise(total, 100, 16000, sr, rng)
 
     audio = out[:total]
     audio = audio / (np.abs(audio).max() + 1e-12) * 0.9
+    audio = master(audio, sr, m, rng)
     return audio.astype(np.float32), beat_times
 
 

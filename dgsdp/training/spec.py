@@ -121,7 +121,13 @@ class RunSpec:
         if not self.audio:
             raise CheckpointError("the run does not say which audio encoder it was trained with (audio config)")
         extra = {"device": device} if device is not None and "device" in self.audio else {}
-        encoder = build(self.audio, "audio", where="audio", source=source, **extra)
+        node = dict(self.audio)
+        if source == "checkpoint" and "_target_" in node:  # settings added since the run was trained
+            for key, value in getattr(
+                resolve("audio", node["_target_"], "audio", source), "legacy_settings", {}
+            ).items():
+                node.setdefault(key, value)
+        encoder = build(node, "audio", where="audio", source=source, **extra)
         if int(encoder.feature_dim) != self.conditioning.audio_dim:
             raise CheckpointError(
                 f"the run's audio encoder gives {encoder.feature_dim}-d features, but the model was trained on "

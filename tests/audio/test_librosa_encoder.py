@@ -9,6 +9,7 @@ from audio_synth import click_track
 
 from dgsdp.audio import LibrosaEncoder, build_audio_encoder, tempo_from_music_id
 from dgsdp.audio.librosa_encoder import BEAT_COLUMN, ENVELOPE_COLUMN, MFCC_COLUMNS, PEAK_COLUMN
+from dgsdp.audio.loudness import normalize_loudness
 from dgsdp.errors import AudioError, ConfigError
 
 SR = 15360
@@ -62,8 +63,12 @@ def test_onset_peaks_sit_on_the_clicks():
 def test_envelope_and_mfcc_columns_match_direct_librosa():
     y = click_track(5.0, 120.0, SR)
     features = LibrosaEncoder().encode(y, SR)
+    y = normalize_loudness(y, SR, -23.0)  # the default: -23 LUFS, MFCCs of the band below 3.5 kHz
     envelope = librosa.onset.onset_strength(y=y, sr=SR, hop_length=512)
-    mfcc = librosa.feature.mfcc(y=y, sr=SR, n_mfcc=20, hop_length=512).T
+    mfcc = librosa.feature.mfcc(y=y, sr=SR, n_mfcc=20, hop_length=512, fmax=3500.0).T
+    # ... and both z-scored over the song (standardize="mean_std")
+    envelope = (envelope - envelope.mean()) / envelope.std()
+    mfcc = (mfcc - mfcc.mean(axis=0)) / mfcc.std(axis=0)
     np.testing.assert_allclose(features[:, ENVELOPE_COLUMN], envelope[:150], rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(features[:, MFCC_COLUMNS], mfcc[:150], rtol=1e-4, atol=1e-3)
 

@@ -189,7 +189,11 @@ def test_beat_tracker_finds_the_music_tempo(dataset: Path, manifest: dict) -> No
         y, sr = librosa.load(dataset / "wavs" / f"{music_id}.wav", sr=None)
         tempo, beat_frames = librosa.beat.beat_track(y=y, sr=sr)
         tempo = float(np.atleast_1d(tempo)[0])
-        assert abs(tempo - music_tempo_bpm(music_id)) <= 2.0, (music_id, tempo)
+        bpm = music_tempo_bpm(music_id)
+        # librosa's tempo grid has one lag per 512-sample hop: at 135 BPM and 44.1 kHz the neighbouring tempi
+        # are 132.5 and 136.0 BPM, so the tracker may land one lag away.
+        grid_step = bpm**2 * 512 / (60.0 * sr)
+        assert abs(tempo - bpm) <= max(2.0, 1.05 * grid_step), (music_id, tempo)
         # The tracked beats are the synthesised ones (not off-beats): most within 50 ms of a true beat.
         tracked_s = librosa.frames_to_time(beat_frames, sr=sr)
         true_s = music_beat_times_s(manifest, music_id)
