@@ -234,8 +234,15 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     joints = pose_to_joints(torch.from_numpy(motion).double()).numpy()
     step = np.linalg.norm(joints[1:] - joints[:-1], axis=-1) * 30
     assert long["figures"]["mean_speed_m_s"] == pytest.approx(step.mean(), rel=1e-5)
-    assert long["figures"]["penetration_cm"] == pytest.approx(max(0.0, -100 * joints[..., 2].min()), rel=1e-5, abs=1e-6)
-    assert long["figures"]["floating_fraction"] == pytest.approx(np.mean(joints[:, [7, 8, 10, 11], 2].min(1) > 0.1))
+    # against the run's stored floor (the tiny dataset's measured floor height)
+    from dgsdp.training.module import load_checkpoint
+
+    floor = float(load_checkpoint(checkpoint).floor_height)
+    assert data["floor_m"] == pytest.approx(floor)
+    depth = floor - joints[..., 2].min()
+    assert long["figures"]["penetration_cm"] == pytest.approx(max(0.0, 100 * depth), rel=1e-5, abs=1e-6)
+    lowest_foot = joints[:, [7, 8, 10, 11], 2].min(1)
+    assert long["figures"]["floating_fraction"] == pytest.approx(np.mean(lowest_foot - floor > 0.1))
     # the training data (the tiny dataset the checkpoint was trained on) was found, measured and cached
     assert data["train_speed_m_s"] > 0 and str(tmp_path / "data") in data["train_speed_source"]
     cached = list((tmp_path / "cache" / "realsongs").glob("train-figures-*.json"))
