@@ -1,12 +1,18 @@
-"""Long-form generation (EDGE): a dance of any length from a batch of overlapping windows sampled together.
+"""Long-form generation: a dance of any length from a batch of overlapping windows sampled together.
 
 The motion is cut into consecutive windows of ``window`` frames (5 s) starting ``stride`` frames (2.5 s) apart,
-padded at the end so that the windows cover it. All windows are denoised in one batch; after every sampling step
-with t > 0 the first ``window - stride`` frames of window i+1 are overwritten with the last frames of window i,
-so neighbours agree on their overlap. Afterwards the windows are stitched: root translation cross-faded with a
-linear ramp over the overlap, joint rotations slerped with the same 0..1 weights, foot contacts taken from the
-window whose ramp weight is larger. The result is cropped to the requested length. A motion shorter than one
-window is sampled as one padded window and cropped.
+padded at the end so that the windows cover it. All windows are denoised in one batch, kept in agreement on their
+overlaps: the initial noise of an overlap is the same in both windows, and every x0 prediction is fused, each
+frame becoming the weighted mean of the predictions of the windows that cover it (weights falling towards each
+window's ends, :func:`fuse_overlaps`). The ODE solvers' updates are linear in the state and x0, so the windows
+then agree exactly at every step; samplers that draw fresh noise copy the earlier window's overlap into the next
+window after each step. Neighbouring windows therefore end on the same motion and no window edge is a hard cut.
+EDGE instead overwrites each window's first half with its neighbour's state after every step (not the last) and
+cross-fades the final windows: with the quickstart model on real songs that left joint speed around the window
+boundaries up to 1.43x the dance's average (seam ratio, docs/benchmarks.md); fused windows give 0.42-0.59x (below
+1 because where a weak model's neighbouring windows disagree, the blend between them adds motion away from the
+boundaries). The stitched result is cropped to the requested length. A motion shorter than one window is sampled
+as one padded window and cropped.
 """
 
 from __future__ import annotations
@@ -284,17 +290,18 @@ def sample_items(
     for r in rows:
         bounds.append(bounds[-1] + r)
 
-    import os
+    def per_dance(fn, x: torch.Tensor) -> torch.Tensor:
+        return torch.cat(
+            [fn(x[bounds[i] : bounds[i + 1]], layout.n_windows, stride) for i, layout in enumerate(layouts)]
+        )
 
-    fuse = os.environ.get("DGSDP_LONGFORM", "fuse") == "fuse"
+    def share_state(x: torch.Tensor, t_next: int) -> torch.Tensor:
+        return per_dance(share_overlaps, x)
 
-    def consistency(x: torch.Tensor, t_next: int) -> torch.Tensor:
-        if not fuse and t_next <= 0:
-            return x
-        share = fuse_overlaps if fuse else share_overlaps
-        parts = [share(x[bounds[i] : bounds[i + 1]], layout.n_windows, stride) for i, layout in enumerate(layouts)]
-        return torch.cat(parts)
+    def fuse_x0(x0: torch.Tensor) -> torch.Tensor:
+        return per_dance(fuse_overlaps, x0)
 
+    long = any(layout.n_windows > 1 for layout in layouts)
     generators = [it.generator(device) for it in items]
     if all(g is None for g in generators):
         noise = Noise(None)
@@ -313,7 +320,8 @@ def sample_items(
         guidance=guidance,
         mask=torch.cat(masks) if any_mask else None,
         known=torch.cat(knowns) if any_mask else None,
-        step_callback=consistency if any(layout.n_windows > 1 for layout in layouts) else None,
+        step_callback=share_state if long else None,
+        x0_callback=fuse_x0 if long else None,
         generator=noise,
         device=device,
         progress=progress,

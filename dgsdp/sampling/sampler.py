@@ -182,6 +182,7 @@ class Sampler:
         mask: torch.Tensor | None = None,
         known: torch.Tensor | None = None,
         step_callback: StepCallback | None = None,
+        x0_callback: Callable[[torch.Tensor], torch.Tensor] | None = None,
         generator: torch.Generator | Sequence[torch.Generator] | Noise | None = None,
         device: torch.device | str = "cpu",
         progress: bool = False,
@@ -202,7 +203,9 @@ class Sampler:
         of the state by ``known`` on its own ODE path, alpha_t known + sigma_t z with the initial noise z (the
         SDE solver pins the start only: its update with x0 = known keeps the known region on a path of that
         form). All end with ``known`` itself. ``step_callback(x, t_next)`` may rewrite the state after every step
-        (long-form consistency uses it); UniPC also calls it after each correction, ``step_callback(x, t)``.
+        (long-form consistency uses it); UniPC also calls it after each correction, ``step_callback(x, t)``, and
+        every sampler calls it on the initial noise, ``step_callback(x, first t)``. ``x0_callback(x0)`` may
+        rewrite every guided x0 prediction before it is used (long-form windows fuse their predictions).
         """
         guidance = guidance or Guidance()
         ts = self.timesteps(method, steps, spacing)
@@ -233,6 +236,8 @@ class Sampler:
                 target = solver.alpha[i] * known + solver.sigma[i] * z
             return mask * target + (1 - mask) * x
 
+        if step_callback is not None:
+            x = step_callback(x, ts[0])
         if solver is not None:
             x = pin_state(x, 0)
         for i, t_now in enumerate(tqdm(ts, desc="sampling", leave=False, disable=not progress)):
@@ -240,6 +245,8 @@ class Sampler:
             t = torch.full((b,), t_now, device=device, dtype=torch.long)
             at = guidance.at(i, len(ts), t_now, masked=mask is not None)
             x0 = self.predict_x0(x, t, cond, at, prepared)
+            if x0_callback is not None:
+                x0 = x0_callback(x0)
             if solver is not None:
                 if mask is not None:
                     x0 = mask * known + (1 - mask) * x0
