@@ -136,6 +136,9 @@ def launch(sweep: str, overrides: list[str] | None = None, *, jobs: int = 1, dry
     """Launch a sweep; returns {"sweep_dir", "expected_jobs", "jobs", "grid"}. ConfigError if it cannot run."""
     from hydra import main as hydra_main
 
+    from dgsdp.cli.schema import register_schemas
+
+    register_schemas()  # the typed schemas the config groups name (model/schema, sampling/schema)
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ConfigError(f"--jobs must be a whole number of parallel jobs, at least 1; got {jobs!r}")
     overrides = list(overrides or [])
