@@ -13,9 +13,8 @@ from pathlib import Path
 import yaml
 
 from dgsdp.audio import AUDIO_ENCODERS, build_audio_encoder, extract_dataset
+from dgsdp.audio.io import AUDIO_SUFFIXES
 from dgsdp.errors import DgsdpError
-
-AUDIO_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3", ".m4a")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -17,6 +17,8 @@ import soundfile as sf
 from dgsdp.errors import AudioError
 
 RESAMPLE_TYPE = "soxr_hq"
+AUDIO_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3", ".m4a")
+"""The song files the project looks for in a folder (mp3 and m4a may need ffmpeg)."""
 MAX_PEAK = 1000.0
 """Float files may exceed full scale (1.0) a little; samples past this (60 dB over) mean a broken file."""
 

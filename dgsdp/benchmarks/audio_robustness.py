@@ -30,7 +30,7 @@ from pathlib import Path
 import librosa
 import numpy as np
 
-from dgsdp.audio.io import load_audio
+from dgsdp.audio.io import AUDIO_SUFFIXES, load_audio
 from dgsdp.audio.librosa_encoder import (
     BEAT_COLUMN,
     CHROMA_COLUMNS,
@@ -40,7 +40,6 @@ from dgsdp.audio.librosa_encoder import (
     LibrosaEncoder,
 )
 
-AUDIO_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3")
 GROUPS = {
     "env": slice(ENVELOPE_COLUMN, ENVELOPE_COLUMN + 1),
     "mfcc0": slice(MFCC_COLUMNS.start, MFCC_COLUMNS.start + 1),

@@ -434,7 +434,7 @@ def write_versions(song: SongInfo, out: Path) -> dict[str, Any]:
     import soundfile as sf
 
     from dgsdp.audio import load_audio
-    from dgsdp.generation.pipeline import AUDIO_SUFFIXES
+    from dgsdp.audio.io import AUDIO_SUFFIXES
     from dgsdp.utils.io import atomic_path
 
     source = Path(song.path)
@@ -474,7 +474,7 @@ def write_versions(song: SongInfo, out: Path) -> dict[str, Any]:
 
 def prepare(out: Path, sources: Sequence[str], max_songs: int, min_seconds: float = MIN_SONG_SECONDS) -> int:
     """Build the song set in ``out`` (see the module docstring); returns the exit code."""
-    from dgsdp.generation.pipeline import AUDIO_SUFFIXES
+    from dgsdp.audio.io import AUDIO_SUFFIXES
     from dgsdp.utils.io import atomic_write_text
 
     _require_ffmpeg()

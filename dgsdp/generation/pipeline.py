@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from dgsdp.audio import AudioEncoder, FeatureCache, audio_duration_seconds
+from dgsdp.audio.io import AUDIO_SUFFIXES
 from dgsdp.editing import build_mask, check_task, place_known
 from dgsdp.errors import AudioError, ConfigError
 from dgsdp.generation.longform import DanceRequest, sample_items
@@ -31,8 +32,6 @@ from dgsdp.utils.device import resolve_device
 from dgsdp.utils.io import atomic_path
 
 log = logging.getLogger(__name__)
-
-AUDIO_SUFFIXES = (".wav", ".mp3", ".ogg", ".flac")
 
 
 @dataclass
