@@ -90,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 1
     print(f"\ncheckpoint: {checkpoint}\ndances:     {out / 'dances'}\ntotal:      {_minutes(time.monotonic() - start)}")
-    print(f"next: python generate.py checkpoint={checkpoint} music=<your song> style=<genre or description>")
+    print(f"next: dgsdp-generate checkpoint={checkpoint} music=<your song> style=<genre or description>")
+    print("      (the same as python generate.py ... from a checkout)")
     print(NEXT_HINT)
     return 1 if failed else 0
 
