@@ -130,7 +130,11 @@ def build(node: Mapping[str, Any], kind: Kind, *, where: str, source: Source = "
     """Build the object a config node describes: ``_target_`` names a registered class of ``kind``, the other
     keys are its keyword arguments, ``extra`` adds or replaces keyword arguments. ``_partial_: true`` returns a
     ``functools.partial`` (optimisers, which get their parameters later). Nested nodes are passed as plain dicts
-    (the class builds its own parts through this function)."""
+    (the class builds its own parts through this function).
+
+    From a checkpoint (``source="checkpoint"``), a key the class lists in its ``legacy_settings`` (a class
+    attribute: setting -> the value runs used before the setting existed) and the stored node lacks gets that
+    value, not the constructor's default."""
     error = CheckpointError if source == "checkpoint" else ConfigError
     if not isinstance(node, Mapping):
         raise error(f"{where} must be a mapping with a _target_, got {type(node).__name__}")
@@ -142,6 +146,9 @@ def build(node: Mapping[str, Any], kind: Kind, *, where: str, source: Source = "
         if key.startswith("_") and key.endswith("_") and key not in _SPECIAL_KEYS:
             raise error(f"{where}.{key}: unknown building key; only {', '.join(sorted(_SPECIAL_KEYS))} are allowed")
     cls = resolve(kind, data.pop("_target_"), where, source)
+    if source == "checkpoint":  # settings added since the run was trained: the value that run used
+        for key, value in getattr(cls, "legacy_settings", {}).items():
+            data.setdefault(key, value)
     partial = bool(data.pop("_partial_", False))
     data.pop("_recursive_", None)
     data.pop("_convert_", None)

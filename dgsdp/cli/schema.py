@@ -27,8 +27,9 @@ class DenoiserConfig:
     music_encoder_layers: int = 2
     modulation_shared: bool = True
     rotary_placement: str = "qk"
-    cross_attention_rotary: bool = False
+    cross_attention_rotary: bool = True
     null_music: str = "input"
+    aligned_music: bool = False
     gradient_checkpointing: bool = False
     ema_decay: float = 0.9999
 

@@ -16,13 +16,15 @@ predicts the clean motion x0 (B, T, 151).
 - Decoder layer: pre-norm self-attention, cross-attention, [style modulation], feed-forward; each sub-block's
   output passes dropout, then FiLM by the time vector, before the residual add (EDGE's order).
 - Rotary positions in every self-attention, on projected queries and keys per head (``rotary_placement="qk"``,
-  default) or on the layer input over the full width (``"input"``, EDGE); ``cross_attention_rotary`` also rotates
-  the cross-attention's queries and keys (EDGE does; memory positions 0..149 music, 150..151 time tokens).
+  default) or on the layer input over the full width (``"input"``, EDGE); and in the cross-attention
+  (``cross_attention_rotary``, default, as EDGE: motion positions 0..149 for queries, memory positions 0..149
+  music, 150..151 time tokens for keys), so that frame i of the motion attends to the music around frame i.
+  Without it neither stream carries positions into the cross-attention: every frame sees the music as an
+  unordered set, and no dance can land on a beat (runs from before the switch were trained that way and load so).
 - ``gradient_checkpointing`` recomputes each encoder/decoder layer's activations in the backward pass (less
   memory for long windows, about a third more compute).
 
-The EDGE architecture is ``rotary_placement="input", cross_attention_rotary=True, null_music="output"`` (see
-docs/edge.md).
+The EDGE architecture is ``rotary_placement="input", null_music="output"`` (see docs/edge.md).
 
 Sampling computes what depends on music and style alone once per run (:meth:`DanceDenoiser.condition`: the
 music encoder, the pooled music vector, the style after dropout, and the cross-attention keys and values of the
@@ -32,6 +34,7 @@ music tokens) and passes it to every step as ``forward(x_t, t, cond=...)``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import torch
 from torch import nn
@@ -52,16 +55,16 @@ class DenoiserCondition:
 
     style: the style after condition dropout (B, ds) or (B, T, ds), or None; pooled: (B, d), the pooled music
     tokens added to the FiLM vector; keys, values: per decoder layer (B, H, T + 2, Dh), the cross-attention keys
-    and values of the memory, whose last two positions (the time tokens) are filled in at every step (with rotary
-    cross-attention, EDGE, the normalised music tokens ``memory`` instead).
+    (rotated to their positions when the cross-attention has rotary positions) and values of the memory, whose
+    last two positions (the time tokens) are filled in at every step.
     """
 
     style: torch.Tensor | None
     pooled: torch.Tensor
-    keys: list[torch.Tensor] | None  # None when the cross-attention has rotary positions (EDGE): see ``memory``
-    values: list[torch.Tensor] | None
+    keys: list[torch.Tensor]
+    values: list[torch.Tensor]
     n_frames: int
-    memory: torch.Tensor | None = None  # (B, T, d) normalised music tokens, when keys and values are not cached
+    aligned: torch.Tensor | None = None  # (B, T, d) the music added to each frame's motion token (aligned_music)
 
     @property
     def batch_size(self) -> int:
@@ -72,10 +75,10 @@ class DenoiserCondition:
         return DenoiserCondition(
             None if self.style is None else self.style[sl],
             self.pooled[sl],
-            None if self.keys is None else [k[sl] for k in self.keys],
-            None if self.values is None else [v[sl] for v in self.values],
+            [k[sl] for k in self.keys],
+            [v[sl] for v in self.values],
             self.n_frames,
-            None if self.memory is None else self.memory[sl],
+            None if self.aligned is None else self.aligned[sl],
         )
 
 
@@ -88,7 +91,7 @@ class DecoderLayer(nn.Module):
         dropout: float,
         *,
         rotary_placement: str = "qk",
-        cross_attention_rotary: bool = False,
+        cross_attention_rotary: bool = True,
     ) -> None:
         super().__init__()
         self.norm1, self.norm2, self.norm3 = (
@@ -125,6 +128,10 @@ class DecoderLayer(nn.Module):
 class DanceDenoiser(nn.Module):
     """Predicts x0 from (x_t, t, music, style). All sizes come from config (``conf/model``)."""
 
+    # Settings added after runs were first trained, with the value those runs used (see dgsdp.registry.build):
+    # runs from before the switch had no positions in their cross-attention.
+    legacy_settings: ClassVar[dict[str, Any]] = {"cross_attention_rotary": False}
+
     def __init__(
         self,
         *,
@@ -143,8 +150,9 @@ class DanceDenoiser(nn.Module):
         modulation_shared: bool = True,
         also_concat: bool = False,
         rotary_placement: str = "qk",
-        cross_attention_rotary: bool = False,
+        cross_attention_rotary: bool = True,
         null_music: str = "input",
+        aligned_music: bool = False,
         gradient_checkpointing: bool = False,
     ) -> None:
         super().__init__()
@@ -180,6 +188,13 @@ class DanceDenoiser(nn.Module):
             nn.LayerNorm(d_model), nn.Linear(d_model, d_model), nn.SiLU(), nn.Linear(d_model, d_model)
         )
         self.memory_norm = nn.LayerNorm(d_model)
+        # frame-aligned music: each frame's encoded music token, projected, is added to that frame's motion token;
+        # zero-initialised, so training starts from the cross-attention-only denoiser
+        self.aligned_proj: nn.Linear | None = None
+        if aligned_music:
+            self.aligned_proj = nn.Linear(d_model, d_model)
+            nn.init.zeros_(self.aligned_proj.weight)
+            nn.init.zeros_(self.aligned_proj.bias)
 
         self.layers = nn.ModuleList(
             DecoderLayer(
@@ -288,8 +303,7 @@ class DanceDenoiser(nn.Module):
         keep_style = self._keep(keep_style, batch, device)
         tokens, pooled, s = self._music(music, style, keep_music, keep_style, n_frames, project_kept_only=True)
         memory = self.memory_norm(tokens)  # LayerNorm is per token: the time tokens are normalised per step
-        if self.layers[0].cross_attn.rotary is not None:  # rotary on cross-attention: keys depend on positions
-            return DenoiserCondition(s, pooled, None, None, n_frames, memory)
+        aligned = self._aligned(memory)
         keys, values = [], []
         for layer in self.layers:
             k, v = layer.cross_attn.keys_values(memory)
@@ -298,7 +312,11 @@ class DanceDenoiser(nn.Module):
             k_all[:, :, :n_frames], v_all[:, :, :n_frames] = k, v
             keys.append(k_all)
             values.append(v_all)
-        return DenoiserCondition(s, pooled, keys, values, n_frames)
+        return DenoiserCondition(s, pooled, keys, values, n_frames, aligned=aligned)
+
+    def _aligned(self, memory: torch.Tensor) -> torch.Tensor | None:
+        """The frame-aligned music (B, T, d) from the normalised music tokens, or None when it is off."""
+        return None if self.aligned_proj is None else self.aligned_proj(memory)
 
     def forward(
         self,
@@ -330,6 +348,9 @@ class DanceDenoiser(nn.Module):
         memory = self.memory_norm(torch.cat((tokens, t_tokens), dim=1))
 
         h = self.input_proj(x_t)
+        aligned = self._aligned(memory[:, :n])
+        if aligned is not None:
+            h = h + aligned
         for i, layer in enumerate(self.layers):
             h = self._run(layer, h, memory, t_cond, s, self._modulation(i))
         return self.output_proj(h)
@@ -348,14 +369,11 @@ class DanceDenoiser(nn.Module):
         t_cond = t_cond + cond.pooled
         t_memory = self.memory_norm(t_tokens)
         h = self.input_proj(x_t)
-        if cond.keys is None:  # rotary cross-attention: the whole memory per step
-            memory = torch.cat((cond.memory, t_memory), dim=1)
-            for i, layer in enumerate(self.layers):
-                h = layer(h, memory, t_cond, cond.style, self._modulation(i))
-            return self.output_proj(h)
+        if cond.aligned is not None:
+            h = h + cond.aligned
         for i, layer in enumerate(self.layers):
             keys, values = cond.keys[i], cond.values[i]
             # the time tokens' keys and values go into the last two positions of the cached memory
-            keys[:, :, n:], values[:, :, n:] = layer.cross_attn.keys_values(t_memory)
+            keys[:, :, n:], values[:, :, n:] = layer.cross_attn.keys_values(t_memory, start=n)
             h = layer(h, None, t_cond, cond.style, self._modulation(i), memory_kv=(keys, values))
         return self.output_proj(h)

@@ -38,9 +38,11 @@ class RotaryEmbedding(nn.Module):
             self._tables[key] = tables
         return tables
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """x (..., T, D) -> same shape, rotated by position (pairs of adjacent channels)."""
-        cos, sin = self.tables(x.shape[-2], x.device, x.dtype)
+    def forward(self, x: torch.Tensor, start: int = 0) -> torch.Tensor:
+        """x (..., T, D) -> same shape, rotated by position start..start + T - 1 (pairs of adjacent channels)."""
+        cos, sin = self.tables(start + x.shape[-2], x.device, x.dtype)
+        if start:
+            cos, sin = cos[start:], sin[start:]
         x1, x2 = x[..., 0::2], x[..., 1::2]
         out = torch.stack((x1 * cos - x2 * sin, x1 * sin + x2 * cos), dim=-1)
         return out.flatten(-2)
@@ -76,10 +78,25 @@ class Attention(nn.Module):
         b, t, d = x.shape
         return x.view(b, t, self.n_heads, d // self.n_heads).transpose(1, 2)
 
-    def keys_values(self, src: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Keys and values (B, H, S, Dh) of ``src`` (B, S, d), for attention without rotary positions."""
+    def keys_values(self, src: torch.Tensor, start: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+        """Keys and values (B, H, S, Dh) of ``src`` (B, S, d) at positions start..start + S - 1 (the keys are
+        rotated when the attention has rotary positions; values never are). Computed once, they serve every
+        query: a memory's keys and values are cached for a whole sampling run this way."""
+        if self.rotary is not None and self.rotary_placement == "input":
+            w_k, w_v = self.kv.weight.chunk(2, dim=0)
+            b_k, b_v = self.kv.bias.chunk(2)
+            return self._heads(F.linear(self.rotary(src, start), w_k, b_k)), self._heads(F.linear(src, w_v, b_v))
         k, v = self.kv(src).chunk(2, dim=-1)
-        return self._heads(k), self._heads(v)
+        k, v = self._heads(k), self._heads(v)
+        return (k if self.rotary is None else self.rotary(k, start)), v
+
+    def queries(self, x: torch.Tensor) -> torch.Tensor:
+        """Queries (B, H, T, Dh) of ``x`` (B, T, d) at positions 0..T - 1."""
+        if self.rotary is None:
+            return self._heads(self.q(x))
+        if self.rotary_placement == "input":
+            return self._heads(self.q(self.rotary(x)))
+        return self.rotary(self._heads(self.q(x)))
 
     def forward(
         self,
@@ -87,26 +104,10 @@ class Attention(nn.Module):
         memory: torch.Tensor | None = None,
         kv: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> torch.Tensor:
-        """x (B, T, d) attends to ``memory`` (B, S, d), or to itself if None; or, without rotary, to keys and
-        values ``kv`` computed earlier by :meth:`keys_values`."""
-        src = x if memory is None else memory
-        if kv is not None:
-            if self.rotary is not None:
-                raise ValueError("precomputed keys and values are for attention without rotary positions")
-            q = self._heads(self.q(x))
-            k, v = kv
-        elif self.rotary is not None and self.rotary_placement == "input":
-            x_rot = self.rotary(x)
-            src_rot = x_rot if memory is None else self.rotary(src)
-            w_k, w_v = self.kv.weight.chunk(2, dim=0)
-            b_k, b_v = self.kv.bias.chunk(2)
-            q = self._heads(self.q(x_rot))
-            k, v = self._heads(F.linear(src_rot, w_k, b_k)), self._heads(F.linear(src, w_v, b_v))
-        else:
-            q = self._heads(self.q(x))
-            k, v = self.keys_values(src)
-            if self.rotary is not None:
-                q, k = self.rotary(q), self.rotary(k)
+        """x (B, T, d) attends to ``memory`` (B, S, d), or to itself if None; or to keys and values ``kv``
+        computed earlier by :meth:`keys_values`. Queries sit at positions 0..T - 1, memory at 0..S - 1."""
+        q = self.queries(x)
+        k, v = kv if kv is not None else self.keys_values(x if memory is None else memory)
         y = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
         return self.out(y.transpose(1, 2).flatten(2))
 

@@ -121,13 +121,7 @@ class RunSpec:
         if not self.audio:
             raise CheckpointError("the run does not say which audio encoder it was trained with (audio config)")
         extra = {"device": device} if device is not None and "device" in self.audio else {}
-        node = dict(self.audio)
-        if source == "checkpoint" and "_target_" in node:  # settings added since the run was trained
-            for key, value in getattr(
-                resolve("audio", node["_target_"], "audio", source), "legacy_settings", {}
-            ).items():
-                node.setdefault(key, value)
-        encoder = build(node, "audio", where="audio", source=source, **extra)
+        encoder = build(self.audio, "audio", where="audio", source=source, **extra)
         if int(encoder.feature_dim) != self.conditioning.audio_dim:
             raise CheckpointError(
                 f"the run's audio encoder gives {encoder.feature_dim}-d features, but the model was trained on "
@@ -337,7 +331,8 @@ class RunSpec:
         defaults = {
             name: p.default for name, p in inspect.signature(cls).parameters.items() if p.default is not p.empty
         }
-        model = {**defaults, **self.model}  # a key an older run did not store has the value it was built with
+        # a key an older run did not store has the value it was built with
+        model = {**defaults, **getattr(cls, "legacy_settings", {}), **self.model}
         return {
             "model": {k: v for k, v in model.items() if k not in SHAPE_FREE_MODEL_KEYS},
             "audio_dim": c.audio_dim,

@@ -197,3 +197,59 @@ def test_attention_is_bidirectional_within_the_window():
     with torch.no_grad():
         c = model(changed, t, music, style)
     assert (a[:, -1] - c[:, -1]).abs().amax() > 1e-4
+
+
+@pytest.mark.parametrize(
+    ("options", "aligned"),
+    [
+        ({}, True),
+        ({"rotary_placement": "input", "null_music": "output"}, True),
+        ({"cross_attention_rotary": False}, False),
+    ],
+)
+def test_the_denoiser_knows_when_in_the_window_the_music_happens(options, aligned):
+    """Music at frame k conditions the frames near k, not every frame alike: with the same motion input on every
+    frame and a single music event at frame k, the response to the event varies over the window only if the
+    cross-attention carries positions (rotary on its queries and keys). Without them every query is identical and
+    sees the music as an unordered set, so no dance could land on a beat."""
+    torch.manual_seed(0)
+    model = DanceDenoiser(d_model=32, n_layers=1, n_heads=2, ff_dim=64, audio_dim=8, dropout=0.0, **options).eval()
+    x_t, t = torch.zeros(1, 40, POSE_DIM), torch.tensor([100])
+
+    def response(frame: int) -> torch.Tensor:
+        """The prediction with one music event at ``frame`` minus the prediction without it (40, 151)."""
+        music = torch.zeros(1, 40, 8)
+        music[0, frame] = 3.0
+        with torch.no_grad():
+            return (model(x_t, t, music) - model(x_t, t, torch.zeros_like(music)))[0]
+
+    early, late = response(10), response(30)
+    spread = (early - early.mean(0)).abs().amax()  # how much the response differs between frames
+    if not aligned:  # the switch's off position: every frame responds alike, wherever the event is
+        assert spread < 1e-5 and early.abs().amax() > 1e-3
+        return
+    assert spread > 1e-3
+    # the response depends on where the event is: frame 10 hears an event at frame 10 differently from one at 30
+    assert (early[10] - late[10]).abs().amax() > 1e-3
+
+
+def test_aligned_music_starts_as_the_plain_denoiser_and_reaches_its_own_frame():
+    """``aligned_music``: zero-initialised, so a new model predicts what the same weights without it predict; once
+    trained (here: random weights), a music event at frame k reaches frame k's prediction directly, far more than
+    any other frame's."""
+    plain = DanceDenoiser(d_model=32, n_layers=1, n_heads=2, ff_dim=64, audio_dim=8, dropout=0.0,
+                          cross_attention_rotary=False).eval()  # fmt: skip
+    aligned = DanceDenoiser(d_model=32, n_layers=1, n_heads=2, ff_dim=64, audio_dim=8, dropout=0.0,
+                            cross_attention_rotary=False, aligned_music=True).eval()  # fmt: skip
+    missing, unexpected = aligned.load_state_dict(plain.state_dict(), strict=False)
+    assert set(missing) == {"aligned_proj.weight", "aligned_proj.bias"} and not unexpected
+    x_t, t = torch.randn(1, 40, POSE_DIM), torch.tensor([100])
+    music = torch.randn(1, 40, 8)
+    with torch.no_grad():
+        assert torch.equal(aligned(x_t, t, music), plain(x_t, t, music))
+        torch.nn.init.normal_(aligned.aligned_proj.weight, std=0.3)
+        quiet = torch.zeros(1, 40, 8)
+        event = quiet.clone()
+        event[0, 10] = 3.0
+        response = (aligned(x_t, t, event) - aligned(x_t, t, quiet))[0].abs().amax(-1)  # per frame
+    assert response.argmax() == 10 and response[10] > 3 * torch.cat((response[:10], response[11:])).amax()

@@ -92,11 +92,15 @@ def test_rotary_attention_matches_reference(placement, cross):
     assert torch.allclose(attn(x, memory), expected, atol=1e-5)
 
 
-def test_edge_rotates_cross_attention_and_default_does_not():
+def test_edge_and_default_rotate_cross_attention_and_differ_in_placement():
     edge = DanceDenoiser(d_model=32, n_layers=1, n_heads=2, ff_dim=64, audio_dim=8, **EDGE)
     default = DanceDenoiser(d_model=32, n_layers=1, n_heads=2, ff_dim=64, audio_dim=8)
-    assert edge.layers[0].cross_attn.rotary is not None and default.layers[0].cross_attn.rotary is None
+    assert edge.layers[0].cross_attn.rotary is not None and default.layers[0].cross_attn.rotary is not None
     assert edge.layers[0].self_attn.rotary_placement == "input" and default.layers[0].self_attn.rotary_placement == "qk"
+    switched_off = DanceDenoiser(
+        d_model=32, n_layers=1, n_heads=2, ff_dim=64, audio_dim=8, cross_attention_rotary=False
+    )
+    assert switched_off.layers[0].cross_attn.rotary is None
 
 
 @pytest.mark.parametrize("null_music", ["input", "output"])
@@ -129,3 +133,23 @@ def test_gradient_checkpointing_gives_the_same_loss_and_gradients():
         results.append((out.detach(), [p.grad.clone() for p in model.parameters()]))
     assert torch.equal(results[0][0], results[1][0])
     assert all(torch.allclose(a, b, atol=1e-7) for a, b in zip(results[0][1], results[1][1], strict=True))
+
+
+def test_runs_stored_without_the_cross_attention_switch_load_without_positions():
+    """A checkpoint from before ``cross_attention_rotary`` existed was trained without rotary cross-attention: it
+    loads that way (the constructor's default is for new runs), a stored value wins, and resuming such a run with
+    today's config is refused as a different architecture."""
+    import dataclasses
+
+    spec = RunSpec.from_groups(
+        model="small", audio_dim=8, style_dim=0, style_kind="none", style_bank_size=0, n_genres=10,
+        d_model=32, n_layers=1, n_heads=2, ff_dim=64, music_encoder_layers=1, dropout=0.0,
+    )  # fmt: skip
+    assert spec.build_denoiser("config").layers[0].cross_attn.rotary is not None
+    old = dataclasses.replace(spec, model={k: v for k, v in spec.model.items() if k != "cross_attention_rotary"})
+    assert old.build_denoiser("checkpoint").layers[0].cross_attn.rotary is None
+    assert old.build_denoiser("config").layers[0].cross_attn.rotary is not None  # a config gets the default
+    stored = dataclasses.replace(spec, model={**old.model, "cross_attention_rotary": True})
+    assert stored.build_denoiser("checkpoint").layers[0].cross_attn.rotary is not None
+    assert old.architecture()["model"]["cross_attention_rotary"] is False
+    assert spec.architecture()["model"]["cross_attention_rotary"] is True

@@ -18,7 +18,9 @@ from dgsdp.motion import (
     pose_to_joints,
     root_rotation_y_up_to_z_up,
     smpl_to_pose,
+    unpack_pose,
 )
+from dgsdp.motion.floor import limit_turn_rate
 
 FPS = 30
 FEET = [7, 8, 10, 11]
@@ -248,3 +250,61 @@ def test_two_bone_leg_ik_reaches_its_target():
     assert ((j3[:, 7] - j3[:, 1]).norm(dim=-1) > 0.97 * reach).all()
     cos = torch.nn.functional.cosine_similarity(j3[:, 7] - j3[:, 1], far - j[:, 1], dim=-1)
     assert (cos > 0.999).all()
+
+
+def _yaw(angles: torch.Tensor) -> torch.Tensor:
+    """Rotations (T, 3, 3) about z by ``angles`` (T,) radians."""
+    c, s = angles.cos(), angles.sin()
+    rot = torch.zeros(len(angles), 3, 3, dtype=torch.float64)
+    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1], rot[:, 2, 2] = c, -s, s, c, 1.0
+    return rot
+
+
+def _angle_between(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    cos = ((a.transpose(-1, -2) @ b).diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2
+    return cos.clamp(-1, 1).arccos()
+
+
+def test_turn_rate_limit_makes_a_one_frame_flip_a_quick_turn():
+    # facing 0 for 10 frames, then pi - 0.1 (a one-frame flip), then a slow turn within the limit
+    angles = torch.cat((torch.zeros(10), torch.full((20,), math.pi - 0.1), math.pi - 0.1 + 0.2 * torch.arange(1, 11)))
+    rot = _yaw(angles.double())
+    limit = 0.5  # per frame
+    out = limit_turn_rate(rot, limit)
+    steps = _angle_between(out[:-1], out[1:])
+    assert steps.max() <= limit + 1e-9
+    assert torch.equal(out[:10], rot[:10])
+    # it turns at the limit until it has caught up: six steps of 0.5 on frames 10-15, the last 0.04 on frame 16
+    torch.testing.assert_close(steps[9:15], torch.full((6,), limit, dtype=torch.float64))
+    torch.testing.assert_close(_angle_between(out[15], rot[15]), torch.tensor(math.pi - 0.1 - 3.0, dtype=torch.float64))
+    torch.testing.assert_close(out[16:], rot[16:])
+    # a sequence within the limit comes back exactly; given frames keep their rotation
+    assert torch.equal(limit_turn_rate(rot[20:], limit), rot[20:])
+    given = np.zeros(len(rot), dtype=bool)
+    given[12] = True
+    held = limit_turn_rate(rot, limit, given)
+    assert torch.equal(held[12], rot[12]) and _angle_between(held[10], rot[9]) <= limit + 1e-9
+
+
+def test_cleanup_limits_a_flipped_root_and_keeps_turns_of_real_dances():
+    m = dance("BR")
+    flipped = m.clone()
+    # the whole body faces backwards on frames 60-61 (a weak model's flip): its hands jump metres in a frame
+    parts_rot = flipped[60:62, 7:13].reshape(2, 3, 2)
+    flipped[60:62, 7:13] = (torch.tensor([[-1.0, 0, 0], [0, -1.0, 0], [0, 0, 1.0]]) @ parts_rot).reshape(2, 6)
+    assert joint_speeds(flipped).max() > 20
+    out = clean_motion(flipped, FPS, 0.0)
+    # the dance itself peaks at 3.8 m/s, flipped at 21.7; limited, the flip is a turn there and back: 6.9 m/s
+    assert joint_speeds(m).max() < 4 and joint_speeds(out).max() < 7.5
+    rot_out = joints(out)  # the root's facing turns at most 15 rad/s
+    root = unpack_pose(out.double()).rotmats[:, 0]
+    assert _angle_between(root[:-1], root[1:]).max() * FPS <= 15.0 + 1e-6
+    assert torch.isfinite(rot_out).all()
+    # the training dances' own turns are within the limit: the root rotation of a clean dance is untouched
+    for genre in ("BR", "JB", "KR", "HO"):
+        clean = dance(genre)
+        assert torch.equal(clean_motion(clean, FPS, 0.0)[:, 7:13], clean[:, 7:13].to(torch.float32))
+    with pytest.raises(ValueError, match="max_turn_rate"):
+        FloorCleanup(max_turn_rate=0.0)
+    assert torch.equal(clean_motion(flipped, FPS, 0.0, settings=FloorCleanup(max_turn_rate=None))[:, 7:13],
+                       flipped[:, 7:13])  # fmt: skip

@@ -18,10 +18,17 @@ def tiny_denoiser(injection: str, **kwargs) -> DanceDenoiser:
     return model.eval()
 
 
+# the default (rotary cross-attention: the music tokens are cached), cached cross-attention keys and values (no
+# rotary in cross-attention), and frame-aligned music with each
+ARCHITECTURES = [{}, {"cross_attention_rotary": False}, {"aligned_music": True},
+                 {"aligned_music": True, "cross_attention_rotary": False}]  # fmt: skip
+
+
 @pytest.mark.parametrize("injection", ["modulation", "concat"])
 @pytest.mark.parametrize("per_frame_style", [False, True])
-def test_cached_forward_equals_the_plain_forward(injection, per_frame_style):
-    model = tiny_denoiser(injection, modulation_shared=False)
+@pytest.mark.parametrize("architecture", ARCHITECTURES)
+def test_cached_forward_equals_the_plain_forward(injection, per_frame_style, architecture):
+    model = tiny_denoiser(injection, modulation_shared=False, **architecture)
     b, n = 6, 33
     x, t = torch.randn(b, n, 151), torch.tensor([999, 500, 3, 0, 250, 999])
     music = torch.randn(b, n, 7)
