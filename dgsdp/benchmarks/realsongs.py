@@ -40,7 +40,7 @@ import numpy as np
 
 from dgsdp.errors import ConfigError, DgsdpError
 from dgsdp.metrics._common import MetricWarning, check_joints
-from dgsdp.metrics.beats import BEAT_COLUMN, beat_alignment_from_beats, motion_beats, music_beats_from_features
+from dgsdp.metrics.beats import beat_alignment_from_beats, motion_beats
 from dgsdp.motion.skeleton import FOOT_JOINTS
 
 FPS = 30
@@ -576,17 +576,6 @@ class SongResult:
         return self.error is None and all(self.checks.values())
 
 
-def music_beats(song: Path, cache_dir: str | os.PathLike) -> np.ndarray:
-    """Beat frames (30 FPS) of a song from the librosa features' beat column (cached with the features)."""
-    from dgsdp.audio import FeatureCache, LibrosaEncoder
-
-    features = FeatureCache(cache_dir).features_for_file(LibrosaEncoder(), song, music_id=song.stem)
-    beats = music_beats_from_features(features)
-    if not np.isin(np.asarray(features)[:, BEAT_COLUMN], (0.0, 1.0)).all():
-        raise DgsdpError("the librosa features' beat column is not a 0/1 flag; cannot read music beats")
-    return beats
-
-
 def _no_nan(value: Any) -> Any:
     """``value`` with every NaN replaced by None (null in JSON)."""
     if isinstance(value, float) and math.isnan(value):
@@ -661,6 +650,7 @@ def run_benchmark(
 
     from dgsdp.cli.config import compose_config
     from dgsdp.cli.generate import GenerateJob
+    from dgsdp.generation.beatsync import song_beats
     from dgsdp.generation.pipeline import find_songs, write_motion
     from dgsdp.motion import pose_to_joints
 
@@ -712,7 +702,7 @@ def run_benchmark(
                 plans[song_style] = generator.resolve_style(song_style)
             start = time.perf_counter()
             generator.music_features(song, cfg.seconds)  # features first (cached), so that the dance time is sampling
-            beats = music_beats(song, cfg.paths.cache_dir)
+            beats = song_beats(song, generator.cache, generator.audio_encoder)
             result.feature_seconds = time.perf_counter() - start
             start = time.perf_counter()
             motions = job.dance(song, plans[song_style])

@@ -79,7 +79,7 @@ def run_info(spec: RunSpec) -> dict[str, Any]:
 def _cleanup(cfg: DictConfig) -> bool:
     value = cfg.get("cleanup", False)
     if not isinstance(value, bool):
-        raise ConfigError(f"cleanup must be true or false (feet on the floor before scoring), got {value!r}")
+        raise ConfigError(f"cleanup must be true or false (score the dances as generate.py writes them), got {value!r}")
     return value
 
 

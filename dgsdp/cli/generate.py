@@ -112,6 +112,7 @@ class GenerateJob:
     sampling: SamplingSettings
     edit: EditSettings
     cleanup: bool
+    beat_sync: bool
     seconds: float | None
     blend_seconds: float
     num_samples: int
@@ -128,6 +129,9 @@ class GenerateJob:
         cleanup = cfg.get("cleanup", True)
         if not isinstance(cleanup, bool):
             raise ConfigError(f"cleanup must be true or false (feet on the floor), got {cleanup!r}")
+        beat_sync = cfg.get("beat_sync", True)
+        if not isinstance(beat_sync, bool):
+            raise ConfigError(f"beat_sync must be true or false (pauses retimed onto the beats), got {beat_sync!r}")
         num_samples = int(cfg.num_samples)
         if num_samples < 1:
             raise ConfigError(f"num_samples must be at least 1, got {num_samples}")
@@ -138,7 +142,7 @@ class GenerateJob:
             max_song_seconds=None if cfg.max_song_seconds is None else float(cfg.max_song_seconds),
         )
         return cls(
-            generator, sampling, edit_settings(cfg, generator.fps), cleanup,
+            generator, sampling, edit_settings(cfg, generator.fps), cleanup, beat_sync,
             None if cfg.seconds is None else float(cfg.seconds), float(cfg.schedule_blend_seconds), num_samples,
             int(cfg.seed), bool(cfg.progress),
         )  # fmt: skip
@@ -148,7 +152,7 @@ class GenerateJob:
         return self.generator.dance_to_song(
             song, plan, edit=self.edit, seconds=self.seconds, blend_seconds=self.blend_seconds,
             num_samples=self.num_samples, sampling=self.sampling, seed=self.seed, progress=self.progress,
-            cleanup=self.cleanup,
+            cleanup=self.cleanup, beat_sync=self.beat_sync,
         )  # fmt: skip
 
 

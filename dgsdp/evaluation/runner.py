@@ -55,7 +55,7 @@ class Evaluator:
         cleanup: bool = False,
     ) -> None:
         self.generator = generator
-        self.cleanup = bool(cleanup)  # score the raw model (False) or its dances after the floor cleanup
+        self.cleanup = bool(cleanup)  # score the raw model (False) or its dances as generate.py writes them
         self.spec = spec
         self.sampling = sampling or SamplingSettings()
         self.seed = int(seed)

@@ -10,7 +10,6 @@ from dgsdp.evaluation.clips import Clip, clip_seed
 from dgsdp.evaluation.features import MODEL_FPS, motion_to_joints
 from dgsdp.evaluation.protocols import ProtocolSpec, Variant
 from dgsdp.generation import DanceGenerator, DanceRequest
-from dgsdp.motion import clean_motion
 from dgsdp.sampling import SamplingSettings
 
 
@@ -58,8 +57,8 @@ def sample_clips(
     cleanup: bool = False,
 ) -> list[np.ndarray]:
     """Generated dances for ``clips`` as 30 FPS z-up joints (T, 24, 3), with the variant's guidance weight.
-    The model's raw output is scored unless ``cleanup`` puts the feet on the floor as generate.py does
-    (:func:`dgsdp.motion.clean_motion`, given channels kept)."""
+    The model's raw output is scored unless ``cleanup`` finishes the dances as generate.py does
+    (:meth:`DanceGenerator.finish`: retimed onto the clip's beats where nothing is given, feet on the floor)."""
     g = sampling.guidance
     settings = SamplingSettings(
         method=sampling.method, steps=sampling.steps, eta=sampling.eta,
@@ -70,5 +69,5 @@ def sample_clips(
     requests = clip_requests(generator, clips, variant, spec, seed=seed, trial=trial)
     motions = generator.generate_many(requests, settings)
     if cleanup:
-        motions = [clean_motion(m, MODEL_FPS, generator.floor_height, mask=r.mask) for m, r in zip(motions, requests)]
+        motions = [generator.finish(m, c.beats_30fps, mask=r.mask) for m, c, r in zip(motions, clips, requests)]
     return [motion_to_joints(m[0].numpy()) for m in motions]

@@ -23,6 +23,7 @@ from dgsdp.audio import AudioEncoder, FeatureCache, audio_duration_seconds
 from dgsdp.audio.io import AUDIO_SUFFIXES
 from dgsdp.editing import build_mask, check_task, place_known
 from dgsdp.errors import AudioError, ConfigError
+from dgsdp.generation.beatsync import BeatSync, song_beats, sync_to_beats
 from dgsdp.generation.longform import DanceRequest, sample_items
 from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styles
 from dgsdp.motion import POSE_DIM, FloorCleanup, clean_motion, pose_to_joints, unpack_pose
@@ -284,11 +285,11 @@ class DanceGenerator:
         seed: int | None = 0,
         progress: bool = False,
         cleanup: bool | FloorCleanup = True,
+        beat_sync: bool | BeatSync = True,
     ) -> torch.Tensor:
         """Motions (num_samples, T, 151) danced to a whole song (or its first ``seconds``) in a resolved style,
         with an optional editing task: music features, style per frame, editing mask, then :meth:`generate`.
-        ``cleanup`` puts the feet on the run's floor (:func:`dgsdp.motion.clean_motion`; given channels of an edit
-        are kept exactly); False returns the model's raw output."""
+        ``cleanup`` and ``beat_sync``: see :meth:`finish`."""
         music, n_frames = self.music_features(song, seconds)
         style = self.style_frames(plan, n_frames, blend_seconds)
         mask, known = self.edit_inputs(edit or EditSettings(), n_frames)
@@ -296,8 +297,32 @@ class DanceGenerator:
             n_frames, music=music, style=style, mask=mask, known=known, num_samples=num_samples,
             sampling=sampling, seed=seed, progress=progress,
         )  # fmt: skip
+        if cleanup is False or music is None:
+            beats = None
+        else:
+            beats = song_beats(song, self.cache, self.audio_encoder)
+        return self.finish(motions, beats, mask=mask, cleanup=cleanup, beat_sync=beat_sync)
+
+    def finish(
+        self,
+        motions: torch.Tensor,
+        music_beats: np.ndarray | None,
+        *,
+        mask: torch.Tensor | None = None,
+        cleanup: bool | FloorCleanup = True,
+        beat_sync: bool | BeatSync = True,
+    ) -> torch.Tensor:
+        """The model's dances (S, T, 151) as generate.py writes them. ``cleanup`` False: unchanged (the model's raw
+        output). Otherwise, first, unless ``beat_sync`` is False, each dance is retimed so that its pauses fall on
+        the music beats (frames, (K,); :func:`dgsdp.generation.beatsync.sync_to_beats`; not with an editing
+        ``mask``, whose given frames would move, nor without beats); then the feet are put on the run's floor
+        (:func:`dgsdp.motion.clean_motion`; given channels of an edit are kept exactly)."""
         if cleanup is False:
             return motions
+        if beat_sync is not False and music_beats is not None and mask is None:
+            settings = beat_sync if isinstance(beat_sync, BeatSync) else None
+            beats = np.asarray(music_beats)
+            motions = sync_to_beats(motions, beats[beats < motions.shape[-2]], self.fps, settings=settings)
         settings = cleanup if isinstance(cleanup, FloorCleanup) else None
         return clean_motion(motions, self.fps, self.floor_height, mask=mask, settings=settings)
 

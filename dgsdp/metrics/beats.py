@@ -29,12 +29,17 @@ def motion_beats(joints: np.ndarray, fps: float = 60, sigma_frames: float | None
     smoothed with a Gaussian of ``sigma_frames`` (default 5 frames at 60 FPS scaled by fps / 60;
     scipy's default reflect boundary and 4-sigma truncation, as the reference). Returns (M,) int64.
     """
+    return argrelextrema(kinematic_speed(joints, fps, sigma_frames), np.less)[0].astype(np.int64)
+
+
+def kinematic_speed(joints: np.ndarray, fps: float = 60, sigma_frames: float | None = None) -> np.ndarray:
+    """The smoothed mean joint speed whose strict local minima are the kinematic beats (:func:`motion_beats`):
+    joints (T, 24, 3) metres, T >= 2 -> (T-1,) metres per frame, entry t between frames t and t + 1."""
     positions = check_joints(joints, min_frames=2)
     if sigma_frames is None:
         sigma_frames = MOTION_SIGMA_FRAMES_60FPS * fps / REFERENCE_FPS
     speed = np.linalg.norm(positions[1:] - positions[:-1], axis=-1).mean(axis=-1)
-    smoothed = gaussian_filter1d(speed, sigma_frames)
-    return argrelextrema(smoothed, np.less)[0].astype(np.int64)
+    return gaussian_filter1d(speed, sigma_frames)
 
 
 def beat_alignment_from_beats(

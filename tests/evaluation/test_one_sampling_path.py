@@ -41,9 +41,13 @@ def test_evaluate_and_generate_make_the_same_dance(trained_run, tmp_path):
     assert report.ok, report.errors
     generated = np.load(tmp_path / f"{song.stem}.npy")
     assert generated.shape == (150, 151)
-    # generate.py puts the feet on the floor by default; evaluation scores the raw dance unless cleanup=true
-    cleaned = clean_motion(evaluated, generator.fps, generator.floor_height)
-    np.testing.assert_allclose(generated, cleaned.numpy(), rtol=0, atol=1e-5)
+    # generate.py finishes the dance by default (retimed onto the beats, feet on the floor); evaluation scores the
+    # raw dance unless cleanup=true, and then finishes it the same way with the clip's beats
+    assert len(clip.beats_30fps) >= 2
+    finished = generator.finish(evaluated[None], clip.beats_30fps)[0]
+    np.testing.assert_allclose(generated, finished.numpy(), rtol=0, atol=1e-5)
+    floor_only = clean_motion(evaluated, generator.fps, generator.floor_height)
+    assert torch.abs(finished - floor_only).max() > 1e-3  # the retiming moved something
     # and it is not a coincidence of the settings: another seed gives another dance
     other = generator.generate(150, music=requests[1].music, style=requests[1].style, seed=8, sampling=settings)
     assert torch.abs(other[0] - evaluated).max() > 1e-2

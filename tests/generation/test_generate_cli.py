@@ -117,19 +117,31 @@ def test_command_line_exit_codes_and_messages(tmp_path, checkpoint, songs, repo_
 
 
 def test_cleanup_is_on_by_default_and_switches_off(tmp_path, checkpoint, songs):
-    """generate.py writes the dance with its feet on the run's floor; cleanup=false writes the model's raw dance."""
+    """generate.py writes the dance retimed onto the song's beats with its feet on the run's floor; beat_sync=false
+    keeps the model's timing; cleanup=false writes the model's raw dance."""
     import torch
 
+    from dgsdp.audio import FeatureCache
+    from dgsdp.generation.beatsync import song_beats, sync_to_beats
     from dgsdp.motion import clean_motion, pose_to_joints
     from dgsdp.training import load_checkpoint
 
     floor = float(load_checkpoint(checkpoint).floor_height)
-    cleaned = np.load(_first_motion(tmp_path, checkpoint, songs))
+    finished = np.load(_first_motion(tmp_path, checkpoint, songs))
     raw_cfg = gen_config(tmp_path / "raw", checkpoint, songs["good"], "formats=[npy]", "cleanup=false")
-    raw = np.load(generate(raw_cfg).written[str(songs["good"])][0])
-    np.testing.assert_allclose(cleaned, clean_motion(torch.from_numpy(raw), 30, floor).numpy(), atol=1e-5)
-    raw_low = pose_to_joints(torch.from_numpy(raw).double())[..., 2].min()
-    assert pose_to_joints(torch.from_numpy(cleaned).double())[..., 2].min() >= floor - 0.01
-    assert np.abs(cleaned - raw).max() > 1e-3 or raw_low >= floor - 0.01  # it did something, or had nothing to do
+    raw = torch.from_numpy(np.load(generate(raw_cfg).written[str(songs["good"])][0]))
+    timed_cfg = gen_config(tmp_path / "timed", checkpoint, songs["good"], "formats=[npy]", "beat_sync=false")
+    own_timing = np.load(generate(timed_cfg).written[str(songs["good"])][0])
+    np.testing.assert_allclose(own_timing, clean_motion(raw, 30, floor).numpy(), atol=1e-5)
+    beats = song_beats(songs["good"], FeatureCache(tmp_path / "first" / "cache"))
+    assert len(beats) >= 4  # the click song's beats
+    expected = clean_motion(sync_to_beats(raw, beats, 30.0), 30, floor).numpy()
+    np.testing.assert_allclose(finished, expected, atol=1e-5)
+    assert np.abs(finished - own_timing).max() > 1e-3  # the retiming moved something
+    raw_low = pose_to_joints(raw.double())[..., 2].min()
+    assert pose_to_joints(torch.from_numpy(finished).double())[..., 2].min() >= floor - 0.01
+    assert np.abs(own_timing - raw.numpy()).max() > 1e-3 or raw_low >= floor - 0.01  # did something, or nothing to do
+    with pytest.raises(ConfigError, match="beat_sync must be true or false"):
+        generate(gen_config(tmp_path, checkpoint, songs["good"], "beat_sync=often"))
     with pytest.raises(ConfigError, match="cleanup must be true or false"):
         generate(gen_config(tmp_path, checkpoint, songs["good"], "cleanup=sometimes"))

@@ -1,0 +1,181 @@
+"""Beat sync: retime a generated dance so that its pauses fall on the music's beats.
+
+A dancer marks a beat by a pause or a turning point of the movement: a dip of the body's speed (a kinematic
+beat, :func:`dgsdp.metrics.kinematic_speed`). A model that has learnt to dance in the music's tempo but not yet its
+phase pauses at the right rate in the wrong places. :func:`sync_to_beats` warps the dance's time (never its poses)
+so that one clear speed dip lands on each music beat:
+
+1. Candidates: the strict local minima of the smoothed mean joint speed (the same curve the beat alignment score
+   uses), each scored by its depth, ``1 - v(dip) / max v`` over the half beat on either side (1: a full stop).
+2. Each music beat b takes at most one candidate c within ``max_shift_beats`` of a local beat period of it, in
+   order, so that the frame mapping b -> c keeps its slope between anchors within ``[1 / max_rate, max_rate]``.
+   A dynamic programme picks the anchors with the largest total depth minus ``rate_penalty * (slope - 1)^2`` per
+   beat spanned; a beat may stay unanchored (it scores nothing).
+3. Output frame t shows the dance at source time s(t): piecewise linear through the anchors, with slope 1 before
+   the first and after the last (clamped to the dance). Poses are interpolated linearly between the two nearest
+   source frames (the 6-d rotations are re-orthonormalised wherever they are read).
+
+So the timing moves by at most a quarter beat, the length is unchanged, and the dance locally runs at most
+``max_rate`` times faster or slower. Frames given by an editing mask would move in time: a dance with a mask is
+returned unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dgsdp.audio import AudioEncoder, FeatureCache, LibrosaEncoder
+from dgsdp.errors import DgsdpError
+from dgsdp.metrics.beats import BEAT_COLUMN, kinematic_speed, music_beats_from_features
+from dgsdp.motion import POSE_DIM, pose_to_joints
+
+
+@dataclass(frozen=True)
+class BeatSync:
+    """Settings of :func:`sync_to_beats` (see the module docstring)."""
+
+    max_shift_beats: float = 0.25  # a dip moves at most this fraction of a beat period
+    max_rate: float = 1.25  # local speed-up (and 1 / slow-down) of the dance's time
+    rate_penalty: float = 4.0  # cost of (slope - 1)^2 per beat against a dip's depth (0..1)
+    max_skip: int = 4  # anchors at most this many beats apart are constrained together
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.max_shift_beats) and 0.0 < self.max_shift_beats <= 0.5):
+            raise ValueError(f"max_shift_beats must lie in (0, 0.5], got {self.max_shift_beats}")
+        if not (math.isfinite(self.max_rate) and self.max_rate > 1.0):
+            raise ValueError(f"max_rate must be a number > 1, got {self.max_rate}")
+        if not (math.isfinite(self.rate_penalty) and self.rate_penalty >= 0.0):
+            raise ValueError(f"rate_penalty must be a finite number >= 0, got {self.rate_penalty}")
+        if self.max_skip < 1:
+            raise ValueError(f"max_skip must be >= 1, got {self.max_skip}")
+
+
+def song_beats(song: Path, cache: FeatureCache, encoder: AudioEncoder | None = None) -> np.ndarray:
+    """Beat frames (30 FPS) of a song: the beat column of its 35-d librosa features (librosa's beat tracker, the
+    beats the beat alignment score is measured against), cached with the features. ``encoder``: the model's own
+    audio encoder; its features are used when it is the librosa encoder, else the default librosa features."""
+    if encoder is None or encoder.name != "librosa":
+        encoder = LibrosaEncoder()
+    features = cache.features_for_file(encoder, song, music_id=song.stem)
+    if not np.isin(np.asarray(features)[:, BEAT_COLUMN], (0.0, 1.0)).all():
+        raise DgsdpError("the librosa features' beat column is not a 0/1 flag; cannot read music beats")
+    return music_beats_from_features(features)
+
+
+def _local_periods(beats: np.ndarray) -> np.ndarray:
+    """(B,) beat period around each beat: the median of the (up to four) intervals next to it."""
+    gaps = np.diff(beats).astype(np.float64)
+    out = np.empty(len(beats))
+    for k in range(len(beats)):
+        out[k] = np.median(gaps[max(0, k - 2) : k + 2])
+    return out
+
+
+def _dips(speed: np.ndarray, beats: np.ndarray, periods: np.ndarray, s: BeatSync) -> list[list[tuple[int, float]]]:
+    """Per beat, the candidate dips (frame, depth) within reach."""
+    minima = np.nonzero((speed[1:-1] < speed[:-2]) & (speed[1:-1] < speed[2:]))[0] + 1
+    out = []
+    for b, period in zip(beats, periods):
+        reach = s.max_shift_beats * period
+        near = minima[np.abs(minima - b) <= reach]
+        half = max(1, int(round(period / 2)))
+        cands = []
+        for c in near:
+            top = speed[max(0, c - half) : c + half + 1].max()
+            cands.append((int(c), float(1.0 - speed[c] / top) if top > 0 else 0.0))
+        out.append(cands)
+    return out
+
+
+def beat_anchors(speed: np.ndarray, beats: np.ndarray, settings: BeatSync | None = None) -> tuple[np.ndarray, ...]:
+    """Anchors (music beat frames, source frames) of the warp for a speed curve (N,) and music beats (B,), both in
+    frames of the dance: step 2 of the module docstring."""
+    s = settings or BeatSync()
+    beats = np.unique(np.asarray(beats, dtype=np.int64))
+    beats = beats[(beats >= 0) & (beats < len(speed))]
+    if len(beats) < 2:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    periods = _local_periods(beats)
+    cands = _dips(np.asarray(speed, dtype=np.float64), beats, periods, s)
+    # best[k][i]: the best total of anchors up to and ending with candidate i of beat k; back: the anchor before.
+    # Anchors more than max_skip beats apart are not constrained (their slope is near 1 anyway): a prefix maximum.
+    best: list[list[float]] = []
+    back: list[list[tuple[int, int] | None]] = []
+    prefix: list[tuple[float, tuple[int, int] | None]] = []  # best chain ending at or before beat k
+    for k, options in enumerate(cands):
+        best.append([])
+        back.append([])
+        far = k - s.max_skip - 1
+        start = prefix[far] if far >= 0 else (0.0, None)
+        for c, depth in options:
+            value, prev = start[0] + depth, start[1]
+            for k0 in range(max(0, k - s.max_skip), k):
+                span = beats[k] - beats[k0]
+                for i0, (c0, _) in enumerate(cands[k0]):
+                    slope = (c - c0) / span
+                    if not (1.0 / s.max_rate <= slope <= s.max_rate):
+                        continue
+                    v = best[k0][i0] + depth - s.rate_penalty * (slope - 1.0) ** 2 * (k - k0)
+                    if v > value:
+                        value, prev = v, (k0, i0)
+            best[k].append(value)
+            back[k].append(prev)
+        here = max(((v, (k, i)) for i, v in enumerate(best[k])), default=(-np.inf, None))
+        before = prefix[-1] if prefix else (0.0, None)
+        prefix.append(here if here[0] > before[0] else before)
+    node = prefix[-1][1]
+    chosen = []
+    while node is not None:
+        chosen.append((int(beats[node[0]]), cands[node[0]][node[1]][0]))
+        node = back[node[0]][node[1]]
+    chosen.reverse()
+    return np.array([b for b, _ in chosen], np.int64), np.array([c for _, c in chosen], np.int64)
+
+
+def warp_times(n_frames: int, beats: np.ndarray, sources: np.ndarray) -> np.ndarray:
+    """Source time (n_frames,) of each output frame: piecewise linear through the anchors, slope 1 outside."""
+    t = np.arange(n_frames, dtype=np.float64)
+    if len(beats) == 0:
+        return t
+    src = np.interp(t, beats, sources.astype(np.float64))
+    src = np.where(t < beats[0], t + (sources[0] - beats[0]), src)
+    src = np.where(t > beats[-1], t + (sources[-1] - beats[-1]), src)
+    return np.clip(src, 0.0, n_frames - 1.0)
+
+
+def resample(motion: torch.Tensor, times: np.ndarray) -> torch.Tensor:
+    """Motion (T, C) read at fractional frame ``times`` (T',) by linear interpolation of neighbouring frames."""
+    lo = np.clip(np.floor(times).astype(np.int64), 0, len(motion) - 1)
+    hi = np.clip(lo + 1, 0, len(motion) - 1)
+    w = torch.as_tensor(times - lo, dtype=motion.dtype, device=motion.device)[:, None]
+    return motion[lo] * (1 - w) + motion[hi] * w
+
+
+def sync_to_beats(
+    motion: torch.Tensor,
+    music_beats: np.ndarray,
+    fps: float,
+    *,
+    mask: torch.Tensor | None = None,
+    settings: BeatSync | None = None,
+) -> torch.Tensor:
+    """Unnormalised motion (T, 151) or (S, T, 151) at ``fps`` and music beat frames (B,) of the same frame rate ->
+    the motion retimed so that its speed dips fall on the beats (see the module docstring). With an editing
+    ``mask`` the motion is returned unchanged."""
+    if motion.shape[-1] != POSE_DIM or motion.ndim not in (2, 3):
+        raise ValueError(f"sync_to_beats needs motion (T, {POSE_DIM}) or (S, T, {POSE_DIM}), got {tuple(motion.shape)}")
+    if mask is not None or motion.shape[-2] < 3:
+        return motion
+    batch = motion if motion.ndim == 3 else motion[None]
+    out = []
+    for x in batch:
+        speed = kinematic_speed(pose_to_joints(x.detach().double().cpu()).numpy(), fps)
+        beats, sources = beat_anchors(speed, np.asarray(music_beats), settings)
+        out.append(resample(x, warp_times(len(x), beats, sources)) if len(beats) else x)
+    result = torch.stack(out)
+    return result if motion.ndim == 3 else result[0]

@@ -1,0 +1,114 @@
+"""Beat sync: a dance whose pauses lie off the beats comes out with its pauses on them, within the limits."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from dgsdp.generation.beatsync import BeatSync, beat_anchors, resample, sync_to_beats, warp_times
+from dgsdp.metrics.beats import beat_alignment, kinematic_speed, motion_beats
+from dgsdp.motion import pack_pose, pose_to_joints
+
+FPS = 30.0
+PERIOD = 15  # frames per beat (120 BPM)
+
+
+def walking_with_pauses(pauses: np.ndarray, n_frames: int) -> torch.Tensor:
+    """A standing body gliding along x, 0.5 m per stroke, that stops dead at each time in ``pauses`` (frames):
+    within a stroke the speed follows 1 - cos, so the joint speed's only minima are the pauses."""
+    t = np.arange(n_frames, dtype=np.float64)
+    k = np.clip(np.searchsorted(pauses, t, side="right") - 1, 0, len(pauses) - 2)
+    u = np.clip((t - pauses[k]) / (pauses[k + 1] - pauses[k]), 0.0, 1.0)
+    x = 0.5 * (k + u - np.sin(2 * np.pi * u) / (2 * np.pi))
+    trans = torch.zeros(n_frames, 3, dtype=torch.float64)
+    trans[:, 0] = torch.from_numpy(x)
+    trans[:, 2] = 0.9
+    rotmats = torch.eye(3, dtype=torch.float64).expand(n_frames, 24, 3, 3)
+    return pack_pose(torch.ones(n_frames, 4, dtype=torch.float64), trans, rotmats)
+
+
+def test_pauses_a_few_frames_off_the_beat_are_moved_onto_it():
+    n = 300
+    beats = np.arange(20, 280, PERIOD)
+    pauses = np.concatenate([[5.5 - PERIOD], beats + 3.5, [n + 3.5]]).astype(np.float64)  # 3.5 frames late
+    motion = walking_with_pauses(pauses, n)
+    joints = pose_to_joints(motion).numpy()
+    before = motion_beats(joints, fps=FPS)
+    assert len(before) == len(beats)  # one kinematic beat per pause, off the music beat
+    assert np.all(before[1:-1] == beats[1:-1] + 3)  # speed entry t lies between frames t and t + 1
+
+    synced = sync_to_beats(motion, beats, FPS)
+    assert synced.shape == motion.shape
+    after = motion_beats(pose_to_joints(synced).numpy(), fps=FPS)
+    for b in beats:
+        assert np.abs(after - b).min() <= 1, f"no kinematic beat within a frame of the music beat {b}"
+    score_before = beat_alignment(joints, beats, fps=FPS)
+    score_after = beat_alignment(pose_to_joints(synced).numpy(), beats, fps=FPS)
+    assert score_after > score_before + 0.3
+
+
+def test_anchors_pick_the_deepest_dip_within_reach_and_keep_the_rate_limits():
+    beats = np.array([30, 45, 60, 75, 90])
+    speed = np.ones(120)
+    for b in beats:  # a shallow dip 1 frame after each beat and a deep one 3 frames before
+        speed[b + 1] = 0.8
+        speed[b - 3] = 0.1
+    got_beats, sources = beat_anchors(speed, beats)
+    np.testing.assert_array_equal(got_beats, beats)
+    np.testing.assert_array_equal(sources, beats - 3)
+    # a dip beyond a quarter beat (3.75 frames) is out of reach: only the shallow ones remain
+    speed = np.ones(120)
+    for b in beats:
+        speed[b + 1] = 0.8
+        speed[b - 5] = 0.1
+    _, sources = beat_anchors(speed, beats)
+    np.testing.assert_array_equal(sources, beats + 1)
+
+
+def test_the_warp_never_runs_faster_or_slower_than_the_limit():
+    rng = np.random.default_rng(0)
+    beats = np.cumsum(rng.integers(12, 18, size=40)) + 10
+    speed = rng.uniform(0.2, 1.0, size=int(beats[-1]) + 20)  # many random dips: anchors fight over them
+    settings = BeatSync(max_rate=1.25)
+    got_beats, sources = beat_anchors(speed, beats, settings)
+    assert len(got_beats) > len(beats) // 2
+    assert np.all(np.abs(sources - got_beats) <= settings.max_shift_beats * 18)
+    times = warp_times(len(speed), got_beats, sources)
+    assert times[0] >= 0 and times[-1] <= len(speed) - 1
+    slopes = np.diff(times)
+    inside = (np.arange(len(slopes)) >= got_beats[0]) & (np.arange(len(slopes)) < got_beats[-1])
+    assert np.all(slopes[inside] >= 1 / 1.25 - 1e-9) and np.all(slopes[inside] <= 1.25 + 1e-9)
+
+
+def test_resample_interpolates_between_neighbouring_frames():
+    x = torch.arange(10, dtype=torch.float64)[:, None].expand(10, 3)
+    out = resample(x, np.array([0.0, 0.25, 4.5, 9.0]))
+    np.testing.assert_allclose(out[:, 0].numpy(), [0.0, 0.25, 4.5, 9.0])
+
+
+def test_edits_short_dances_and_songs_without_beats_are_left_alone():
+    motion = walking_with_pauses(np.array([-10.0, 22, 37, 52, 67, 90]), 80)
+    beats = np.array([20, 35, 50, 65])
+    assert torch.equal(sync_to_beats(motion, beats, FPS, mask=torch.zeros_like(motion)), motion)
+    assert torch.equal(sync_to_beats(motion, np.array([40]), FPS), motion)
+    assert torch.equal(sync_to_beats(motion[:2], beats, FPS), motion[:2])
+    batch = torch.stack([motion, motion])
+    assert torch.equal(sync_to_beats(batch, beats, FPS)[1], sync_to_beats(motion, beats, FPS))
+    with pytest.raises(ValueError, match="151"):
+        sync_to_beats(motion[:, :10], beats, FPS)
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{"max_shift_beats": 0.0}, {"max_shift_beats": 0.6}, {"max_rate": 1.0}, {"rate_penalty": -1.0}]
+)
+def test_bad_settings_are_refused(kwargs):
+    with pytest.raises(ValueError):
+        BeatSync(**kwargs)
+
+
+def test_kinematic_speed_is_the_curve_of_the_beats():
+    joints = pose_to_joints(walking_with_pauses(np.array([-5.0, 20, 40, 60, 90]), 80)).numpy()
+    v = kinematic_speed(joints, fps=FPS)
+    minima = np.nonzero((v[1:-1] < v[:-2]) & (v[1:-1] < v[2:]))[0] + 1
+    np.testing.assert_array_equal(minima, motion_beats(joints, fps=FPS))
