@@ -56,6 +56,7 @@ from dgsdp.motion.skeleton import FOOT_JOINTS, rest_offsets
 LEGS: tuple[tuple[tuple[int, int, int, int], tuple[int, int]], ...] = (((1, 4, 7, 10), (0, 2)), ((2, 5, 8, 11), (1, 3)))
 ROOT_Z_CHANNEL = 6
 _ROOT_ROTATION = slice(ROTATION_CHANNELS.start, ROTATION_CHANNELS.start + 6)
+BODY_UP_AXIS = 1  # the root's local y (SMPL's up) is the body's up axis: its world direction is z when standing
 # Passes of the vertical offset's smoother: each adds back the smoothed residual (1 - (1 - G)^(n + 1) overall).
 REFINE_STEPS = 2
 
@@ -75,6 +76,7 @@ class FloorCleanup:
     given_blend_seconds: float = 0.2  # corrections fade out towards given (masked) frames over this time
     floor_tolerance_m: float = 0.0  # joints may end at most this far below the floor
     max_turn_rate: float | None = 15.0  # radians per second of the root rotation (2.4 turns); None: off
+    max_tilt_rate: float | None = 6.0  # radians per second the body's up axis tilts (a tumble); None: off
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.contact_threshold <= 1.0:
@@ -86,10 +88,10 @@ class FloorCleanup:
                 raise ValueError(f"{name} must be a finite number >= 0, got {value}")
         if not (math.isfinite(self.floor_tolerance_m) and self.floor_tolerance_m >= 0):
             raise ValueError(f"floor_tolerance_m must be a finite number >= 0, got {self.floor_tolerance_m}")
-        if self.max_turn_rate is not None and not (math.isfinite(self.max_turn_rate) and self.max_turn_rate > 0):
-            raise ValueError(
-                f"max_turn_rate must be a positive number of radians per second or None, got {self.max_turn_rate}"
-            )
+        for name in ("max_turn_rate", "max_tilt_rate"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number of radians per second or None, got {value}")
 
 
 def lowest_foot_height(joints: torch.Tensor) -> torch.Tensor:
@@ -349,6 +351,46 @@ def limit_turn_rate(rotations: torch.Tensor, max_step_rad: float, given: np.ndar
     return out
 
 
+def _axis_rotation(a: torch.Tensor, b: torch.Tensor, angle: float | None = None) -> torch.Tensor:
+    """The smallest rotation (3, 3) turning unit vector ``a`` towards unit vector ``b`` by ``angle`` (default: all the
+    way). Opposite vectors turn about an axis perpendicular to ``a``."""
+    axis = torch.linalg.cross(a, b)
+    n = float(torch.linalg.vector_norm(axis))
+    full = math.atan2(n, float(a @ b))
+    if n < 1e-12:
+        if full < 1e-12:
+            return torch.eye(3, dtype=a.dtype)
+        helper = torch.zeros_like(a)
+        helper[int(torch.argmin(a.abs()))] = 1.0
+        axis = torch.linalg.cross(a, helper)
+        n = float(torch.linalg.vector_norm(axis))
+    return axis_angle_to_matrix(axis * ((full if angle is None else angle) / n))
+
+
+def limit_tilt_rate(rotations: torch.Tensor, max_step_rad: float, given: np.ndarray | None = None) -> torch.Tensor:
+    """Root rotations (T, 3, 3) -> the same sequence whose body up axis (the root's local y: world up when the body
+    stands) tilts at most ``max_step_rad`` per frame: where the model's up axis runs ahead, the frame's rotation is
+    turned by the smallest rotation that brings its up axis to the previous result's, moved towards the model's by
+    the limit (its facing about that axis is kept). Frames ``given`` (T,) bool keep their rotation."""
+    out = rotations.clone()
+    up = rotations[:, :, BODY_UP_AXIS]
+    fast = (torch.sum(up[:-1] * up[1:], dim=-1).clamp(-1.0, 1.0).arccos() > max_step_rad).tolist()
+    behind = False
+    for t in range(1, len(rotations)):
+        if given is not None and given[t]:
+            behind = False
+            continue
+        if not behind and not fast[t - 1]:
+            continue
+        previous, target = out[t - 1][:, BODY_UP_AXIS], up[t]
+        angle = float(torch.dot(previous, target).clamp(-1.0, 1.0).arccos())
+        behind = angle > max_step_rad
+        if behind:
+            allowed = _axis_rotation(previous, target, max_step_rad) @ previous
+            out[t] = _axis_rotation(target, allowed) @ rotations[t]
+    return out
+
+
 def _standing_heights() -> np.ndarray:
     """Heights (4,) of the foot joints (7, 8, 10, 11) above the toes of a flat foot: the ankle sits above its toe
     by the toe's rest offset, the toes are the floor's reference."""
@@ -371,9 +413,13 @@ def _clean_one(x: torch.Tensor, fps: float, floor: float, mask: torch.Tensor | N
     root_free = np.ones(n) if given is None else _free_weight(given[:, ROOT_Z_CHANNEL], ramp)
     rotmats = parts.rotmats
     out = x.clone()
-    if s.max_turn_rate is not None:
+    if s.max_turn_rate is not None or s.max_tilt_rate is not None:
         root_given = None if given is None else given[:, _ROOT_ROTATION].any(axis=1)
-        root = limit_turn_rate(rotmats[:, 0], s.max_turn_rate / fps, root_given)
+        root = rotmats[:, 0]
+        if s.max_tilt_rate is not None:
+            root = limit_tilt_rate(root, s.max_tilt_rate / fps, root_given)
+        if s.max_turn_rate is not None:
+            root = limit_turn_rate(root, s.max_turn_rate / fps, root_given)
         turned = (root != rotmats[:, 0]).flatten(-2).any(-1)  # frames the limit changed
         if turned.any():
             out[:, _ROOT_ROTATION] = torch.where(turned[:, None], matrix_to_6d(root), x[:, _ROOT_ROTATION])

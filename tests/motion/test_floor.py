@@ -13,6 +13,7 @@ from dgsdp.motion import (
     FloorCleanup,
     clean_motion,
     foot_contacts,
+    matrix_to_axis_angle,
     measure_floor_height,
     pack_pose,
     pose_to_joints,
@@ -20,7 +21,7 @@ from dgsdp.motion import (
     smpl_to_pose,
     unpack_pose,
 )
-from dgsdp.motion.floor import limit_turn_rate
+from dgsdp.motion.floor import limit_tilt_rate, limit_turn_rate
 
 FPS = 30
 FEET = [7, 8, 10, 11]
@@ -286,6 +287,39 @@ def test_turn_rate_limit_makes_a_one_frame_flip_a_quick_turn():
     assert torch.equal(held[12], rot[12]) and _angle_between(held[10], rot[9]) <= limit + 1e-9
 
 
+def _pitch(angles: torch.Tensor) -> torch.Tensor:
+    """Rotations (T, 3, 3) about x by ``angles`` (T,) radians, after facing 0.3 rad about z: the body's up axis
+    (the root's local y) tips over."""
+    c, s = angles.cos(), angles.sin()
+    rot = torch.zeros(len(angles), 3, 3, dtype=torch.float64)
+    rot[:, 0, 0], rot[:, 1, 1], rot[:, 1, 2], rot[:, 2, 1], rot[:, 2, 2] = 1.0, c, -s, s, c
+    up = torch.tensor([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]], dtype=torch.float64)  # local y -> world z
+    return rot @ _yaw(torch.full((len(angles),), 0.3, dtype=torch.float64)) @ up
+
+
+def test_tilt_rate_limit_makes_a_one_frame_tumble_a_quick_lean_and_keeps_the_facing():
+    # upright for 10 frames, then lying on its back (the up axis turned by pi/2 in one frame) for 20 frames
+    angles = torch.cat((torch.zeros(10), torch.full((20,), math.pi / 2))).double()
+    rot = _pitch(angles)
+    limit = 0.5
+    out = limit_tilt_rate(rot, limit)
+    up_in, up_out = rot[:, :, 1], out[:, :, 1]
+    tilt = torch.sum(up_out[:-1] * up_out[1:], dim=-1).clamp(-1, 1).arccos()
+    assert tilt.max() <= limit + 1e-9
+    # three steps of 0.5 on frames 10-12, then the last 0.071 on frame 13, and the model's own rotation after that
+    torch.testing.assert_close(tilt[9:12], torch.full((3,), limit, dtype=torch.float64))
+    torch.testing.assert_close(tilt[12], torch.tensor(math.pi / 2 - 1.5, dtype=torch.float64))
+    assert torch.equal(out[:10], rot[:10]) and torch.equal(out[13:], rot[13:])
+    # only the up axis was moved: the correction turns about an axis perpendicular to the model's up axis
+    for t in range(10, 13):
+        correction = matrix_to_axis_angle(out[t] @ rot[t].transpose(0, 1))
+        assert abs(float(correction @ up_in[t])) < 1e-9 and float(correction.norm()) > 0.05
+    given = np.zeros(len(rot), dtype=bool)
+    given[11] = True
+    assert torch.equal(limit_tilt_rate(rot, limit, given)[11], rot[11])
+    assert torch.equal(limit_tilt_rate(rot[10:], limit), rot[10:])  # no tilt at all: unchanged
+
+
 def test_cleanup_limits_a_flipped_root_and_keeps_turns_of_real_dances():
     m = dance("BR")
     flipped = m.clone()
@@ -306,5 +340,7 @@ def test_cleanup_limits_a_flipped_root_and_keeps_turns_of_real_dances():
         assert torch.equal(clean_motion(clean, FPS, 0.0)[:, 7:13], clean[:, 7:13].to(torch.float32))
     with pytest.raises(ValueError, match="max_turn_rate"):
         FloorCleanup(max_turn_rate=0.0)
-    assert torch.equal(clean_motion(flipped, FPS, 0.0, settings=FloorCleanup(max_turn_rate=None))[:, 7:13],
+    with pytest.raises(ValueError, match="max_tilt_rate"):
+        FloorCleanup(max_tilt_rate=float("nan"))
+    assert torch.equal(clean_motion(flipped, FPS, 0.0, settings=FloorCleanup(max_turn_rate=None, max_tilt_rate=None))[:, 7:13],
                        flipped[:, 7:13])  # fmt: skip
