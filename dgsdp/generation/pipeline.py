@@ -162,7 +162,7 @@ class DanceGenerator:
             feats = feats[:limit]
         if len(feats) < 1:
             raise AudioError(f"{path.name} is shorter than one motion frame ({1 / self.fps:.3f} s)")
-        return torch.from_numpy(np.ascontiguousarray(feats)), len(feats)
+        return torch.from_numpy(np.array(feats)), len(feats)  # a copy: the cached array is read-only
 
     @property
     def style_dim(self) -> int:

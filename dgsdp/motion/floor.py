@@ -14,6 +14,8 @@ Cleanup (:func:`clean_motion`), from the model's own predicted foot contacts (ch
    frame (40-90 rad/s), which throws the hands at 10-20 m/s; limited, the flip becomes a quick turn. Each
    frame's root rotation moves towards the model's by at most the limit (the rest is made up on the next
    frames). Frames whose root rotation is given keep it.
+   Before it, the body's up axis (the root's local y) tilts at most ``max_tilt_rate`` radians per second (6; the
+   synthetic dances' fastest tilt is 2.7): a model that loses the body's orientation tumbles it over instead.
 1. Foot locking: a foot (its ankle or toe predicted in contact, and down: within ``plant_height_m`` of its
    standing height once the body is on the floor) stays where it was planted. Over each run of such frames the
    joint is held at its mean horizontal position (over ``lock_window_seconds`` around each frame, so a short plant
