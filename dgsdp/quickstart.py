@@ -36,7 +36,7 @@ TRAIN_STEPS = 500
 QUICKSTART_TRAINING = (f"trainer.max_steps={TRAIN_STEPS}", "optimizer.lr=1e-3", "loss=simple", "model.ema_decay=0.98")
 NEXT_HINT = (
     "      add sampling.guidance.music=<w> to choose how strongly the dance follows the music (classifier-free\n"
-    "      guidance; default 2.0: 1 = plain conditional sampling, higher = more music-driven and more energetic,\n"
+    "      guidance; default 2.5: 1 = plain conditional sampling, higher = more music-driven and more energetic,\n"
     "      too high exaggerates the motion) and seed=<n> for another dance to the same song"
 )
 

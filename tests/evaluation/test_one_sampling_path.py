@@ -10,7 +10,7 @@ from dgsdp.data.aistpp import music_path
 from dgsdp.evaluation import Evaluator, ProtocolSpec, Variant, clip_requests, clip_seed
 from dgsdp.generation import DanceGenerator
 from dgsdp.motion import clean_motion
-from dgsdp.sampling import SamplingSettings
+from dgsdp.sampling import GuidanceSettings, SamplingSettings
 from dgsdp.training import load_checkpoint
 
 
@@ -21,7 +21,7 @@ def test_evaluate_and_generate_make_the_same_dance(trained_run, tmp_path):
     clips = ev.source.clips(ev.source.load_split("test"), 5.0)
     starts = [c for c in clips if c.start == 0]  # generate.py dances from the start of the song
     chosen = [starts[1], starts[0], clips[1]]  # batched with others, in another order
-    settings = SamplingSettings(steps=3, eta=1.0)
+    settings = SamplingSettings(steps=3, eta=1.0, guidance=GuidanceSettings(music=2.0))
     requests = clip_requests(generator, chosen, Variant(5.0, 2.0, "none", "w2"), spec, seed=7, trial=1)
     evaluated = generator.generate_many(requests, settings)[1][0]  # the dance for starts[0]
 
@@ -45,7 +45,8 @@ def test_evaluate_and_generate_make_the_same_dance(trained_run, tmp_path):
     # raw dance unless cleanup=true, and then finishes it the same way with the clip's beats
     assert len(clip.beats_30fps) >= 2
     finished = generator.finish(evaluated[None], clip.beats_30fps)[0]
-    np.testing.assert_allclose(generated, finished.numpy(), rtol=0, atol=1e-5)
+    # (batched with other clips, the raw dances differ by float rounding, which the turn and tilt limits can grow)
+    np.testing.assert_allclose(generated, finished.numpy(), rtol=0, atol=1e-4)
     floor_only = clean_motion(evaluated, generator.fps, generator.floor_height)
     assert torch.abs(finished - floor_only).max() > 1e-3  # the retiming moved something
     # and it is not a coincidence of the settings: another seed gives another dance
