@@ -359,7 +359,9 @@ def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[g
                                       elem_id="steps")  # fmt: skip
                     seed = gr.Number(value=0, precision=0, label="Seed")
                     video = gr.Checkbox(value=True, label="Render an mp4 video")
-                    cleanup = gr.Checkbox(value=True, label="Feet on the floor (contact cleanup)", elem_id="cleanup")
+                    cleanup = gr.Checkbox(
+                        value=True, label="Finish the dance (on the beat, feet on the floor)", elem_id="cleanup"
+                    )
                 generate = gr.Button("Generate", variant="primary", elem_id="generate")
             with gr.Column(scale=3, min_width=420):
                 viewer = gr.HTML(

@@ -74,7 +74,7 @@ class DanceRequest:
     blend_seconds: float = 2.0
     edit: Edit | None = None
     video: bool = True
-    cleanup: bool = True  # feet on the floor (dgsdp.motion.floor); False: the model's raw output
+    cleanup: bool = True  # beat sync and feet on the floor (DanceGenerator.finish); False: the model's raw output
 
 
 @dataclass
