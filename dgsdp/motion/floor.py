@@ -43,6 +43,7 @@ predicted.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -333,11 +334,30 @@ def limit_turn_rate(rotations: torch.Tensor, max_step_rad: float, given: np.ndar
     """Rotations (T, 3, 3) -> the same sequence turning at most ``max_step_rad`` per frame: each frame turns from
     the previous result towards its own rotation, about the axis between them, by at most the limit. Frames
     ``given`` (T,) bool keep their rotation."""
-    out = rotations.clone()
     # the model's own turn between consecutive frames: while the result is not behind, a frame within the limit
     # is kept as it is without further work
     steps = matrix_to_axis_angle(rotations[:-1].transpose(-1, -2) @ rotations[1:])
     fast = (torch.linalg.vector_norm(steps, dim=-1) > max_step_rad).tolist()
+
+    def catch_up(previous: torch.Tensor, target: torch.Tensor) -> torch.Tensor | None:
+        rotvec = matrix_to_axis_angle(previous.transpose(0, 1) @ target)  # the turn still to make
+        angle = float(torch.linalg.vector_norm(rotvec))
+        return previous @ axis_angle_to_matrix(rotvec * (max_step_rad / angle)) if angle > max_step_rad else None
+
+    return _rate_limited(rotations, fast, given, catch_up)
+
+
+def _rate_limited(
+    rotations: torch.Tensor,
+    fast: list[bool],
+    given: np.ndarray | None,
+    catch_up: Callable[[torch.Tensor, torch.Tensor], torch.Tensor | None],
+) -> torch.Tensor:
+    """The pass shared by the turn and tilt limits over rotations (T, 3, 3): a frame the model moves within the limit
+    (``fast[t - 1]`` False) is kept while the result is not behind; otherwise ``catch_up(previous result, model's
+    rotation)`` gives the frame's limited rotation, or None when the model's is within reach. Frames ``given`` keep
+    their rotation."""
+    out = rotations.clone()
     behind = False
     for t in range(1, len(rotations)):
         if given is not None and given[t]:
@@ -345,11 +365,10 @@ def limit_turn_rate(rotations: torch.Tensor, max_step_rad: float, given: np.ndar
             continue
         if not behind and not fast[t - 1]:
             continue
-        rotvec = matrix_to_axis_angle(out[t - 1].transpose(0, 1) @ rotations[t])  # the turn still to make
-        angle = float(torch.linalg.vector_norm(rotvec))
-        behind = angle > max_step_rad
+        limited = catch_up(out[t - 1], rotations[t])
+        behind = limited is not None
         if behind:
-            out[t] = out[t - 1] @ axis_angle_to_matrix(rotvec * (max_step_rad / angle))
+            out[t] = limited
     return out
 
 
@@ -374,23 +393,17 @@ def limit_tilt_rate(rotations: torch.Tensor, max_step_rad: float, given: np.ndar
     stands) tilts at most ``max_step_rad`` per frame: where the model's up axis runs ahead, the frame's rotation is
     turned by the smallest rotation that brings its up axis to the previous result's, moved towards the model's by
     the limit (its facing about that axis is kept). Frames ``given`` (T,) bool keep their rotation."""
-    out = rotations.clone()
     up = rotations[:, :, BODY_UP_AXIS]
     fast = (torch.sum(up[:-1] * up[1:], dim=-1).clamp(-1.0, 1.0).arccos() > max_step_rad).tolist()
-    behind = False
-    for t in range(1, len(rotations)):
-        if given is not None and given[t]:
-            behind = False
-            continue
-        if not behind and not fast[t - 1]:
-            continue
-        previous, target = out[t - 1][:, BODY_UP_AXIS], up[t]
-        angle = float(torch.dot(previous, target).clamp(-1.0, 1.0).arccos())
-        behind = angle > max_step_rad
-        if behind:
-            allowed = _axis_rotation(previous, target, max_step_rad) @ previous
-            out[t] = _axis_rotation(target, allowed) @ rotations[t]
-    return out
+
+    def catch_up(previous: torch.Tensor, target: torch.Tensor) -> torch.Tensor | None:
+        previous_up, target_up = previous[:, BODY_UP_AXIS], target[:, BODY_UP_AXIS]
+        if float(torch.dot(previous_up, target_up).clamp(-1.0, 1.0).arccos()) <= max_step_rad:
+            return None
+        allowed = _axis_rotation(previous_up, target_up, max_step_rad) @ previous_up
+        return _axis_rotation(target_up, allowed) @ target
+
+    return _rate_limited(rotations, fast, given, catch_up)
 
 
 def _standing_heights() -> np.ndarray:
