@@ -297,10 +297,8 @@ class DanceGenerator:
             n_frames, music=music, style=style, mask=mask, known=known, num_samples=num_samples,
             sampling=sampling, seed=seed, progress=progress,
         )  # fmt: skip
-        if cleanup is False or music is None:
-            beats = None
-        else:
-            beats = song_beats(song, self.cache, self.audio_encoder)
+        retime = cleanup is not False and beat_sync is not False and mask is None and music is not None
+        beats = song_beats(song, self.cache, self.audio_encoder) if retime else None
         return self.finish(motions, beats, mask=mask, cleanup=cleanup, beat_sync=beat_sync)
 
     def finish(
