@@ -53,6 +53,12 @@ class BeatSync:
             raise ValueError(f"rate_penalty must be a finite number >= 0, got {self.rate_penalty}")
         if self.max_skip < 1:
             raise ValueError(f"max_skip must be >= 1, got {self.max_skip}")
+        # anchors farther apart than max_skip beats are not checked: their offsets alone must keep the rate
+        if 2 * self.max_shift_beats / (self.max_skip + 1) > 1 - 1 / self.max_rate:
+            raise ValueError(
+                f"max_shift_beats={self.max_shift_beats} with max_skip={self.max_skip} could run the dance faster "
+                f"than max_rate={self.max_rate} between anchors far apart: raise max_skip or lower max_shift_beats"
+            )
 
 
 def song_beats(song: Path, cache: FeatureCache, encoder: AudioEncoder | None = None) -> np.ndarray:

@@ -100,7 +100,14 @@ def test_edits_short_dances_and_songs_without_beats_are_left_alone():
 
 
 @pytest.mark.parametrize(
-    "kwargs", [{"max_shift_beats": 0.0}, {"max_shift_beats": 0.6}, {"max_rate": 1.0}, {"rate_penalty": -1.0}]
+    "kwargs",
+    [
+        {"max_shift_beats": 0.0},
+        {"max_shift_beats": 0.6},
+        {"max_rate": 1.0},
+        {"rate_penalty": -1.0},
+        {"max_shift_beats": 0.5, "max_skip": 1},
+    ],
 )
 def test_bad_settings_are_refused(kwargs):
     with pytest.raises(ValueError):
