@@ -15,7 +15,8 @@ Cleanup (:func:`clean_motion`), from the model's own predicted foot contacts (ch
    frame's root rotation moves towards the model's by at most the limit (the rest is made up on the next
    frames). Frames whose root rotation is given keep it.
    Before it, the body's up axis (the root's local y) tilts at most ``max_tilt_rate`` radians per second (6; the
-   synthetic dances' fastest tilt is 2.7): a model that loses the body's orientation tumbles it over instead.
+   synthetic dances' fastest tilt is 2.7): a model that loses the body's orientation tumbles it over instead. While
+   the tilt is limited the facing is carried over from the previous frame.
 1. Foot locking: a foot (its ankle or toe predicted in contact, and down: within ``plant_height_m`` of its
    standing height once the body is on the floor) stays where it was planted. Over each run of such frames the
    joint is held at its mean horizontal position (over ``lock_window_seconds`` around each frame, so a short plant
@@ -390,9 +391,11 @@ def _axis_rotation(a: torch.Tensor, b: torch.Tensor, angle: float | None = None)
 
 def limit_tilt_rate(rotations: torch.Tensor, max_step_rad: float, given: np.ndarray | None = None) -> torch.Tensor:
     """Root rotations (T, 3, 3) -> the same sequence whose body up axis (the root's local y: world up when the body
-    stands) tilts at most ``max_step_rad`` per frame: where the model's up axis runs ahead, the frame's rotation is
-    turned by the smallest rotation that brings its up axis to the previous result's, moved towards the model's by
-    the limit (its facing about that axis is kept). Frames ``given`` (T,) bool keep their rotation."""
+    stands) tilts at most ``max_step_rad`` per frame: where the model's up axis runs ahead, the frame is the previous
+    result tilted by the smallest rotation that moves its up axis towards the model's by the limit. A body tipping
+    over faster than that is not a pose the model knows: its facing is not trusted either and is carried over from
+    the previous frame (the turn-rate limit then catches up with the model's facing). Frames ``given`` (T,) bool
+    keep their rotation."""
     up = rotations[:, :, BODY_UP_AXIS]
     fast = (torch.sum(up[:-1] * up[1:], dim=-1).clamp(-1.0, 1.0).arccos() > max_step_rad).tolist()
 
@@ -401,7 +404,7 @@ def limit_tilt_rate(rotations: torch.Tensor, max_step_rad: float, given: np.ndar
         if float(torch.dot(previous_up, target_up).clamp(-1.0, 1.0).arccos()) <= max_step_rad:
             return None
         allowed = _axis_rotation(previous_up, target_up, max_step_rad) @ previous_up
-        return _axis_rotation(target_up, allowed) @ target
+        return _axis_rotation(previous_up, allowed) @ previous
 
     return _rate_limited(rotations, fast, given, catch_up)
 

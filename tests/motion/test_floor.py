@@ -303,17 +303,20 @@ def test_tilt_rate_limit_makes_a_one_frame_tumble_a_quick_lean_and_keeps_the_fac
     rot = _pitch(angles)
     limit = 0.5
     out = limit_tilt_rate(rot, limit)
-    up_in, up_out = rot[:, :, 1], out[:, :, 1]
+    up_out = out[:, :, 1]
     tilt = torch.sum(up_out[:-1] * up_out[1:], dim=-1).clamp(-1, 1).arccos()
     assert tilt.max() <= limit + 1e-9
     # three steps of 0.5 on frames 10-12, then the last 0.071 on frame 13, and the model's own rotation after that
     torch.testing.assert_close(tilt[9:12], torch.full((3,), limit, dtype=torch.float64))
     torch.testing.assert_close(tilt[12], torch.tensor(math.pi / 2 - 1.5, dtype=torch.float64))
     assert torch.equal(out[:10], rot[:10]) and torch.equal(out[13:], rot[13:])
-    # only the up axis was moved: the correction turns about an axis perpendicular to the model's up axis
+    # each limited frame is the previous one tipped over (a swing: about an axis perpendicular to its up axis),
+    # so the facing is carried over; here it is the model's own (0.3 rad about z before tipping)
     for t in range(10, 13):
-        correction = matrix_to_axis_angle(out[t] @ rot[t].transpose(0, 1))
-        assert abs(float(correction @ up_in[t])) < 1e-9 and float(correction.norm()) > 0.05
+        swing = matrix_to_axis_angle(out[t] @ out[t - 1].transpose(0, 1))
+        assert abs(float(swing @ up_out[t - 1])) < 1e-9
+        torch.testing.assert_close(float(swing.norm()), limit)
+    torch.testing.assert_close(out[12], _pitch(torch.tensor([1.5], dtype=torch.float64))[0])
     given = np.zeros(len(rot), dtype=bool)
     given[11] = True
     assert torch.equal(limit_tilt_rate(rot, limit, given)[11], rot[11])
