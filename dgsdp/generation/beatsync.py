@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.signal import argrelextrema
 
 from dgsdp.audio import AudioEncoder, FeatureCache, LibrosaEncoder
 from dgsdp.errors import DgsdpError
@@ -84,7 +85,7 @@ def _local_periods(beats: np.ndarray) -> np.ndarray:
 
 def _dips(speed: np.ndarray, beats: np.ndarray, periods: np.ndarray, s: BeatSync) -> list[list[tuple[int, float]]]:
     """Per beat, the candidate dips (frame, depth) within reach."""
-    minima = np.nonzero((speed[1:-1] < speed[:-2]) & (speed[1:-1] < speed[2:]))[0] + 1
+    minima = argrelextrema(speed, np.less)[0]  # the kinematic beats' definition (dgsdp.metrics.motion_beats)
     out = []
     for b, period in zip(beats, periods):
         reach = s.max_shift_beats * period

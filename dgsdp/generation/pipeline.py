@@ -317,10 +317,10 @@ class DanceGenerator:
         (:func:`dgsdp.motion.clean_motion`; given channels of an edit are kept exactly)."""
         if cleanup is False:
             return motions
-        if beat_sync is not False and music_beats is not None and mask is None:
+        if beat_sync is not False and music_beats is not None:
             settings = beat_sync if isinstance(beat_sync, BeatSync) else None
             beats = np.asarray(music_beats)
-            motions = sync_to_beats(motions, beats[beats < motions.shape[-2]], self.fps, settings=settings)
+            motions = sync_to_beats(motions, beats[beats < motions.shape[-2]], self.fps, mask=mask, settings=settings)
         settings = cleanup if isinstance(cleanup, FloorCleanup) else None
         return clean_motion(motions, self.fps, self.floor_height, mask=mask, settings=settings)
 

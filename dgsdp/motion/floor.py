@@ -373,20 +373,19 @@ def _rate_limited(
     return out
 
 
-def _axis_rotation(a: torch.Tensor, b: torch.Tensor, angle: float | None = None) -> torch.Tensor:
-    """The smallest rotation (3, 3) turning unit vector ``a`` towards unit vector ``b`` by ``angle`` (default: all the
-    way). Opposite vectors turn about an axis perpendicular to ``a``."""
+def _axis_rotation(a: torch.Tensor, b: torch.Tensor, angle: float) -> torch.Tensor:
+    """The rotation (3, 3) by ``angle`` about the axis that turns unit vector ``a`` towards unit vector ``b`` along
+    the shortest way. Opposite vectors turn about an axis perpendicular to ``a``."""
     axis = torch.linalg.cross(a, b)
     n = float(torch.linalg.vector_norm(axis))
-    full = math.atan2(n, float(a @ b))
     if n < 1e-12:
-        if full < 1e-12:
+        if float(a @ b) > 0:
             return torch.eye(3, dtype=a.dtype)
         helper = torch.zeros_like(a)
         helper[int(torch.argmin(a.abs()))] = 1.0
         axis = torch.linalg.cross(a, helper)
         n = float(torch.linalg.vector_norm(axis))
-    return axis_angle_to_matrix(axis * ((full if angle is None else angle) / n))
+    return axis_angle_to_matrix(axis * (angle / n))
 
 
 def limit_tilt_rate(rotations: torch.Tensor, max_step_rad: float, given: np.ndarray | None = None) -> torch.Tensor:
@@ -403,8 +402,7 @@ def limit_tilt_rate(rotations: torch.Tensor, max_step_rad: float, given: np.ndar
         previous_up, target_up = previous[:, BODY_UP_AXIS], target[:, BODY_UP_AXIS]
         if float(torch.dot(previous_up, target_up).clamp(-1.0, 1.0).arccos()) <= max_step_rad:
             return None
-        allowed = _axis_rotation(previous_up, target_up, max_step_rad) @ previous_up
-        return _axis_rotation(previous_up, allowed) @ previous
+        return _axis_rotation(previous_up, target_up, max_step_rad) @ previous
 
     return _rate_limited(rotations, fast, given, catch_up)
 
