@@ -50,6 +50,7 @@ PENETRATION_MAX_CM = 3.0  # deepest joint at most this far below the floor
 FLOATING_MAX_FRACTION = 0.10  # fraction of frames with the lowest foot joint > FLOATING_HEIGHT_M above the floor
 FLOATING_HEIGHT_M = 0.10
 SEAM_RATIO_MAX = 1.3  # speed around window boundaries / speed around any frame
+CHECK_NAMES = ("p999", "penetration", "floating", "seam", "bas")  # the targets, in the order they are checked
 SEAM_HALF_WIDTH_FRAMES = 2
 
 # Where the Debian packages hyperrogue-music, drascula-music and fb-music-high (and frozen-bubble-data, which the
@@ -193,13 +194,14 @@ class SongFigures:
 
     def checks(self) -> dict[str, bool]:
         """Pass/fail per target (a dance of one window has no seams: its seam check passes)."""
-        return {
-            "p999": self.p999_speed_m_s < P999_SPEED_MAX_M_S,
-            "penetration": self.penetration_cm <= PENETRATION_MAX_CM,
-            "floating": self.floating_fraction < FLOATING_MAX_FRACTION,
-            "seam": math.isnan(self.seam_ratio) or self.seam_ratio < SEAM_RATIO_MAX,
-            "bas": bool(self.bas > self.bas_shifted),
-        }
+        passed = (
+            self.p999_speed_m_s < P999_SPEED_MAX_M_S,
+            self.penetration_cm <= PENETRATION_MAX_CM,
+            self.floating_fraction < FLOATING_MAX_FRACTION,
+            math.isnan(self.seam_ratio) or self.seam_ratio < SEAM_RATIO_MAX,
+            bool(self.bas > self.bas_shifted),
+        )
+        return dict(zip(CHECK_NAMES, passed, strict=True))
 
 
 def dance_figures(
@@ -561,6 +563,20 @@ def styles_for(songs: Sequence[Path], genres: Sequence[str | None], style: str |
     return [genres[families.index(song_family(s)) % len(genres)] for s in songs]
 
 
+def style_plan(
+    songs: Sequence[Path], genres: Sequence[str | None], style: str | None, all_styles: bool = False
+) -> list[tuple[Path, str | None]]:
+    """The dances to make, (song, style) pairs: each song in its style from :func:`styles_for`, or with
+    ``all_styles`` each song in every genre of the checkpoint, song by song."""
+    if all_styles:
+        if style is not None:
+            raise ConfigError("--all-styles dances every song in every genre: leave out --style")
+        if not [g for g in genres if g is not None]:
+            raise ConfigError("--all-styles needs a model with a style embedding; this checkpoint has no genres")
+        return [(song, genre) for song in songs for genre in genres]
+    return list(zip(songs, styles_for(songs, genres, style)))
+
+
 @dataclass
 class SongResult:
     name: str
@@ -632,12 +648,29 @@ def summary_line(results: Sequence[SongResult], train_speed: float) -> str:
     )
 
 
+def style_summary_lines(results: Sequence[SongResult]) -> list[str]:
+    """One line per style: how many of its dances pass, each target's misses, and its worst p99.9 speed."""
+    lines = []
+    for style in dict.fromkeys(r.style for r in results):
+        mine = [r for r in results if r.style == style]
+        done = [r for r in mine if r.error is None]
+        missed = {name: sum(not r.checks.get(name, True) for r in done) for name in CHECK_NAMES}
+        p999 = [r.figures.p999_speed_m_s for r in done]
+        lines.append(
+            f"style={style} dances={len(mine)} pass={sum(r.passed for r in mine)} errors={len(mine) - len(done)} "
+            + " ".join(f"{name}_missed={n}" for name, n in missed.items())
+            + f" worst_p999={_fmt(max(p999) if p999 else math.nan, '.3f')}"
+        )
+    return lines
+
+
 def run_benchmark(
     folder: Path,
     checkpoint: str,
     overrides: Sequence[str] = (),
     *,
     style: str | None = None,
+    all_styles: bool = False,
     floor_m: float | None = None,
     train_speed: float | None = None,
     json_path: Path | None = None,
@@ -645,7 +678,8 @@ def run_benchmark(
     out: Any = None,
 ) -> list[SongResult]:
     """Dance to every song of ``folder`` as generate.py would and print the table and the summary line (to ``out``,
-    default stdout; progress goes to stderr)."""
+    default stdout; progress goes to stderr). ``all_styles``: every song in every genre of the checkpoint (a row and
+    a dance each), and a summary line per genre after the summary line."""
     import torch
 
     from dgsdp.cli.config import compose_config
@@ -674,8 +708,7 @@ def run_benchmark(
     genres: list[str | None] = [None]
     if generator.style_dim:
         genres = list(generator.embedder().vocab.codes)
-    wanted = None if style is None else str(style)
-    song_styles = styles_for(songs, genres, wanted)
+    dances = style_plan(songs, genres, None if style is None else str(style), all_styles)
     plans: dict[str | None, Any] = {}
     print(
         f"checkpoint {checkpoint}; {len(songs)} songs in {folder}; sampling {sampling.method}-{sampling.steps} "
@@ -694,8 +727,8 @@ def run_benchmark(
     width = max([len(s.name) for s in songs] + [4])
     print(header(width), file=out, flush=True)
     results: list[SongResult] = []
-    for k, (song, song_style) in enumerate(zip(songs, song_styles), 1):
-        print(f"[{k}/{len(songs)}] {song.name} (style {song_style})", file=sys.stderr, flush=True)
+    for k, (song, song_style) in enumerate(dances, 1):
+        print(f"[{k}/{len(dances)}] {song.name} (style {song_style})", file=sys.stderr, flush=True)
         result = SongResult(song.name, song_style)
         try:
             if song_style not in plans:
@@ -708,7 +741,8 @@ def run_benchmark(
             motions = job.dance(song, plans[song_style])
             result.dance_seconds = time.perf_counter() - start
             if motions_dir is not None:
-                write_motion(motions[0], motions_dir / song.stem, fps=generator.fps, formats=["npy"])
+                name = f"{song.stem}__{song_style}" if all_styles else song.stem
+                write_motion(motions[0], motions_dir / name, fps=generator.fps, formats=["npy"])
             joints = pose_to_joints(motions[0].double()).numpy()
             boundaries = window_boundaries(len(joints), window, stride)
             result.figures = dance_figures(joints, music_beats=beats, boundaries=boundaries, floor_m=floor)
@@ -718,6 +752,8 @@ def run_benchmark(
         results.append(result)
         print(format_row(result, train_speed, width), file=out, flush=True)
     print(summary_line(results, train_speed), file=out, flush=True)
+    if all_styles:
+        print("\n".join(style_summary_lines(results)), file=out, flush=True)
     if json_path is not None:
         from dgsdp.utils.io import atomic_write_text
 
@@ -725,6 +761,7 @@ def run_benchmark(
             "folder": str(folder),
             "checkpoint": str(checkpoint),
             "overrides": list(overrides),
+            "all_styles": all_styles,
             "floor_m": floor,
             "train_speed_m_s": None if math.isnan(train_speed) else train_speed,
             "train_speed_source": train_source,
@@ -793,6 +830,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.add_argument("--checkpoint", required=True, help="a trained model's .ckpt file")
         parser.add_argument("--style", default=None, help="one style for all songs (default: the checkpoint's "
                             "genres in turn, one per original song)")  # fmt: skip
+        parser.add_argument("--all-styles", action="store_true", help="dance every song in every genre of the "
+                            "checkpoint (a row each) and print a summary line per genre")  # fmt: skip
         parser.add_argument("--floor", type=float, default=None, help="floor height in metres (default: the run's)")
         parser.add_argument(
             "--train-speed",
@@ -802,10 +841,12 @@ def main(argv: list[str] | None = None) -> int:
         )
         parser.add_argument("--json", type=Path, default=None, help="write every figure to this JSON file")
         parser.add_argument("--motions", type=Path, default=None,
-                            help="also write each dance (T, 151) as <folder>/<song>.npy, e.g. to render it later")  # fmt: skip
+                            help="also write each dance (T, 151) as <folder>/<song>.npy (<song>__<style>.npy with "
+                            "--all-styles), e.g. to render it later")  # fmt: skip
         args = parser.parse_intermixed_args(argv)
         run_benchmark(
-            args.folder, args.checkpoint, args.overrides, style=args.style, floor_m=args.floor,
+            args.folder, args.checkpoint, args.overrides, style=args.style, all_styles=args.all_styles,
+            floor_m=args.floor,
             train_speed=args.train_speed, json_path=args.json, motions_dir=args.motions,
         )  # fmt: skip
         return 0

@@ -13,6 +13,7 @@ import pytest
 import soundfile as sf
 
 from dgsdp.benchmarks import realsongs as rs
+from dgsdp.errors import ConfigError
 
 FPS = 30
 
@@ -158,6 +159,36 @@ def test_styles_cycle_per_original_song():
     assert rs.styles_for(songs, ["BR"], "krump") == ["krump"] * 7
 
 
+def test_all_styles_dances_every_song_in_every_genre():
+    songs = [Path("b.wav"), Path("b-loud.wav"), Path("a.wav")]
+    pairs = rs.style_plan(songs, ["BR", "KR"], None, all_styles=True)
+    assert pairs == [(songs[0], "BR"), (songs[0], "KR"), (songs[1], "BR"), (songs[1], "KR"), (songs[2], "BR"),
+                     (songs[2], "KR")]  # fmt: skip
+    assert rs.style_plan(songs, ["BR", "KR"], None) == list(zip(songs, ["KR", "KR", "BR"]))
+    with pytest.raises(ConfigError, match="leave out --style"):
+        rs.style_plan(songs, ["BR"], "krump", all_styles=True)
+    with pytest.raises(ConfigError, match="no genres"):
+        rs.style_plan(songs, [None], None, all_styles=True)
+
+
+def test_style_summary_counts_each_targets_misses_per_style():
+    def result(style: str, p999: float, bas: float, error: str | None = None) -> rs.SongResult:
+        r = rs.SongResult("x.wav", style, error=error)
+        if error is None:
+            r.figures = rs.SongFigures(10.0, p999, 0.0, 0.0, 1.0, 0.4, bas, 0.25, 8, 20, 3)
+            r.checks = r.figures.checks()
+        return r
+
+    results = [result("JS", 9.5, 0.3), result("JS", 4.0, 0.2), result("JS", 1.0, 0.0, error="unreadable"),
+               result("BR", 3.0, 0.4)]  # fmt: skip
+    assert rs.style_summary_lines(results) == [
+        "style=JS dances=3 pass=0 errors=1 p999_missed=1 penetration_missed=0 floating_missed=0 seam_missed=0 "
+        "bas_missed=1 worst_p999=9.500",
+        "style=BR dances=1 pass=1 errors=0 p999_missed=0 penetration_missed=0 floating_missed=0 seam_missed=0 "
+        "bas_missed=0 worst_p999=3.000",
+    ]
+
+
 def click_song(path: Path, seconds: float, rate_hz: int = 22050, amplitude: float = 0.3) -> None:
     t = np.arange(int(seconds * rate_hz)) / rate_hz
     audio = amplitude * np.sin(2 * np.pi * 440 * t) * (np.mod(t, 0.5) < 0.05)  # a beep every half second
@@ -252,6 +283,26 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     assert reference["n_dances"] == 2 and reference["seconds"] == pytest.approx(16.0)  # two 8 s dances
     assert reference["seam_ratio"] > 0  # 240 frames: boundaries at 75 and 150 laid on them
     assert long["speed_ratio"] == pytest.approx(long["figures"]["mean_speed_m_s"] / data["train_speed_m_s"])
+
+    # --all-styles: the one song in each of the checkpoint's genres, a row, a dance file and a summary line each
+    one = tmp_path / "one"
+    one.mkdir()
+    write_click_song(one / "clicks.wav", 3.0, bpm=120)
+    code = rs.main([
+        str(one), "--checkpoint", checkpoint, "--all-styles", "device=cpu", "sampling.steps=2", "progress=false",
+        f"paths.cache_dir={tmp_path / 'cache'}", "--json", str(report), "--motions", str(tmp_path / "all"),
+    ])  # fmt: skip
+    assert code == 0
+    printed = capsys.readouterr().out.splitlines()
+    data = json.loads(report.read_text())
+    genres = [s["style"] for s in data["songs"]]
+    assert data["all_styles"] and len(genres) >= 2 and len(set(genres)) == len(genres)
+    assert {p.name for p in (tmp_path / "all").iterdir()} == {f"clicks__{g}.npy" for g in genres}
+    summary = printed.index(next(line for line in printed if line.startswith("songs=")))
+    assert printed[summary].startswith(f"songs={len(genres)} ")
+    assert [line.split()[0] for line in printed[summary + 1 :]] == [f"style={g}" for g in genres]
+    for song, line in zip(data["songs"], printed[summary + 1 :]):
+        assert f" pass={int(song['passed'])} " in line
 
 
 @pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="the song set is built with ffmpeg")
