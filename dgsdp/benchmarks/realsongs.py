@@ -571,7 +571,7 @@ def style_plan(
     if all_styles:
         if style is not None:
             raise ConfigError("--all-styles dances every song in every genre: leave out --style")
-        if not [g for g in genres if g is not None]:
+        if all(g is None for g in genres):
             raise ConfigError("--all-styles needs a model with a style embedding; this checkpoint has no genres")
         return [(song, genre) for song in songs for genre in genres]
     return list(zip(songs, styles_for(songs, genres, style)))
@@ -846,8 +846,7 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_intermixed_args(argv)
         run_benchmark(
             args.folder, args.checkpoint, args.overrides, style=args.style, all_styles=args.all_styles,
-            floor_m=args.floor,
-            train_speed=args.train_speed, json_path=args.json, motions_dir=args.motions,
+            floor_m=args.floor, train_speed=args.train_speed, json_path=args.json, motions_dir=args.motions,
         )  # fmt: skip
         return 0
     except DgsdpError as e:
