@@ -26,6 +26,15 @@ def linear_betas(num_steps: int, start: float = 1e-4, end: float = 0.02) -> torc
     return torch.linspace(start * 1000 / num_steps, end * 1000 / num_steps, num_steps, dtype=torch.float64)
 
 
+def x0_bound(clip_x0: bool | float) -> float | None:
+    """The bound of a ``clip_x0`` setting: True = 1 (EDGE), False = None (no clamp), or a positive number."""
+    if isinstance(clip_x0, bool):
+        return 1.0 if clip_x0 else None
+    if isinstance(clip_x0, int | float) and float(clip_x0) > 0:
+        return float(clip_x0)
+    raise ValueError(f"clip_x0 must be true, false or a positive bound, got {clip_x0!r}")
+
+
 @register("diffusion", "dgsdp.diffusion.GaussianDiffusion")
 class GaussianDiffusion(nn.Module):
     """Noise schedule and update rules. Buffers are float32 copies of float64 computations."""
@@ -49,12 +58,7 @@ class GaussianDiffusion(nn.Module):
         # x0 predictions are clamped to [-bound, bound] (normalised units; the training data spans [-1, 1]) while
         # sampling: True is EDGE's bound 1 (it pins every channel inside the training range), a larger bound lets
         # a dance leave that range a little (bounce, deeper levels) and still stops runaway guidance.
-        if isinstance(clip_x0, bool):
-            self.x0_bound = 1.0 if clip_x0 else None
-        elif float(clip_x0) > 0:
-            self.x0_bound = float(clip_x0)
-        else:
-            raise ValueError(f"clip_x0 must be true, false or a positive bound, got {clip_x0!r}")
+        self.x0_bound = x0_bound(clip_x0)
         alphas = 1 - betas
         alpha_bar = torch.cumprod(alphas, dim=0)
         alpha_bar_prev = torch.cat([torch.ones(1, dtype=torch.float64), alpha_bar[:-1]])
@@ -93,8 +97,10 @@ class GaussianDiffusion(nn.Module):
             self.sqrt_one_minus_alpha_bar, t, x_t.ndim
         )
 
-    def clamp(self, x0: torch.Tensor) -> torch.Tensor:
-        return x0 if self.x0_bound is None else x0.clamp(-self.x0_bound, self.x0_bound)
+    def clamp(self, x0: torch.Tensor, bound: float | None = None) -> torch.Tensor:
+        """x0 clamped to [-bound, bound]; ``bound`` None = the process's own (``clip_x0``)."""
+        bound = self.x0_bound if bound is None else bound
+        return x0 if bound is None else x0.clamp(-bound, bound)
 
     def ddpm_step(
         self,

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import torch
 
@@ -59,13 +61,7 @@ def sample_clips(
     """Generated dances for ``clips`` as 30 FPS z-up joints (T, 24, 3), with the variant's guidance weight.
     The model's raw output is scored unless ``cleanup`` finishes the dances as generate.py does
     (:meth:`DanceGenerator.finish`: retimed onto the clip's beats where nothing is given, feet on the floor)."""
-    g = sampling.guidance
-    settings = SamplingSettings(
-        method=sampling.method, steps=sampling.steps, eta=sampling.eta,
-        guidance=type(g)(variant.weight, g.style, g.longform_ramp_fraction, g.edit_cap_below_t),
-        window_frames=sampling.window_frames, stride_frames=sampling.stride_frames, chunk_size=sampling.chunk_size,
-        batch_size=sampling.batch_size, bf16=sampling.bf16,
-    )  # fmt: skip
+    settings = dataclasses.replace(sampling, guidance=dataclasses.replace(sampling.guidance, music=variant.weight))
     requests = clip_requests(generator, clips, variant, spec, seed=seed, trial=trial)
     motions = generator.generate_many(requests, settings)
     if cleanup:

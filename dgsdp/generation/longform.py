@@ -7,8 +7,9 @@ frame becoming the weighted mean of the predictions of the windows that cover it
 window's ends, :func:`fuse_overlaps`). The ODE solvers' updates are linear in the state and x0, so the windows
 then agree exactly at every step; samplers that draw fresh noise copy the earlier window's overlap into the next
 window after each step. Neighbouring windows therefore end on the same motion and no window edge is a hard cut.
-EDGE instead overwrites each window's first half with its neighbour's state after every step (not the last) and
-cross-fades the final windows: with the quickstart model on real songs that left joint speed around the window
+EDGE (``longform="edge"``, the ``sampling=edge`` preset) instead starts every window from its own noise,
+overwrites each window's first half with its neighbour's state after every step but the last, never fuses the x0
+predictions, and cross-fades the final windows: with the quickstart model on real songs that left joint speed around the window
 boundaries up to 1.43x the dance's average (seam ratio, docs/benchmarks.md); fused windows give 0.42-0.59x (below
 1 because where a weak model's neighbouring windows disagree, the blend between them adds motion away from the
 boundaries). The stitched result is cropped to the requested length. A motion shorter than one window is sampled
@@ -240,17 +241,24 @@ def sample_items(
     eta: float = 1.0,
     guidance: Guidance | None = None,
     chunk_size: int = 0,
+    longform: str = "fuse",
+    clip_x0: float | None = None,
     device: torch.device | str = "cpu",
     progress: bool = False,
+    windows: bool = False,
 ) -> list[torch.Tensor]:
     """Sample several dances of any lengths in one batch: returns one unnormalised (S, n_frames, 151) per item.
 
     Each dance is cut into windows of ``window`` frames ``stride`` apart (one padded window when shorter); all
     windows of all items are denoised together (``chunk_size`` > 0 bounds the denoiser's batch), neighbours of
-    the same dance agree on their overlap after every step, and the windows are stitched. The given channels of
-    an edited dance equal its ``known`` motion. A request with a seed draws its noise from it alone."""
+    the same dance agree on their overlap after every step (``longform``: ``fuse`` or EDGE's ``edge``, see the
+    module docstring), and the windows are stitched. The given channels of an edited dance equal its ``known``
+    motion. A request with a seed draws its noise from it alone. ``clip_x0`` replaces the run's x0 bound.
+    ``windows=True`` returns each item's normalised windows (S, n_windows, window, 151) instead, as sampled."""
     if not items:
         return []
+    if longform not in ("fuse", "edge"):
+        raise ValueError(f"unknown long-form mode {longform!r}; use 'fuse' or 'edge'")
     device = torch.device(device)
     if len({it.music is None for it in items}) > 1 or len({it.style is None for it in items}) > 1:
         raise ValueError("the dances of one batch must all have music (or none) and all have a style (or none)")
@@ -301,7 +309,15 @@ def sample_items(
     def fuse_x0(x0: torch.Tensor) -> torch.Tensor:
         return per_dance(fuse_overlaps, x0)
 
+    calls = [0]
+
+    def overwrite_after_step(x: torch.Tensor, t_next: int) -> torch.Tensor:
+        """EDGE: not the initial noise (the sampler's first call), not after the last step (t_next < 0)."""
+        calls[0] += 1
+        return x if calls[0] == 1 or t_next < 0 else per_dance(share_overlaps, x)
+
     long = any(layout.n_windows > 1 for layout in layouts)
+    edge = longform == "edge"
     generators = [it.generator(device) for it in items]
     if all(g is None for g in generators):
         noise = Noise(None)
@@ -310,7 +326,7 @@ def sample_items(
     else:
         noise = Noise(generators, rows=rows)
     denoiser = ChunkedDenoiser(sampler.denoiser, chunk_size) if chunk_size > 0 else sampler.denoiser
-    run = Sampler(denoiser, sampler.diffusion, style_guidance=sampler.style_guidance)
+    run = Sampler(denoiser, sampler.diffusion, style_guidance=sampler.style_guidance, clip_x0=clip_x0)
     x = run.sample(
         (bounds[-1], window, POSE_DIM),
         Condition(torch.cat(music) if music else None, torch.cat(style) if style else None),
@@ -320,12 +336,17 @@ def sample_items(
         guidance=guidance,
         mask=torch.cat(masks) if any_mask else None,
         known=torch.cat(knowns) if any_mask else None,
-        step_callback=share_state if long else None,
-        x0_callback=fuse_x0 if long else None,
+        step_callback=(overwrite_after_step if edge else share_state) if long else None,
+        x0_callback=fuse_x0 if long and not edge else None,
         generator=noise,
         device=device,
         progress=progress,
     )
+    if windows:
+        return [
+            x[bounds[i] : bounds[i + 1]].reshape(it.num_samples, layout.n_windows, window, POSE_DIM)
+            for i, (it, layout) in enumerate(zip(items, layouts))
+        ]
     motion = normalizer.unnormalize(x)
     out = []
     for i, (it, layout) in enumerate(zip(items, layouts)):

@@ -19,6 +19,7 @@ import torch
 from tqdm.auto import tqdm
 
 from dgsdp.diffusion import GaussianDiffusion
+from dgsdp.diffusion.gaussian import x0_bound
 from dgsdp.sampling.noise import Noise
 from dgsdp.sampling.solvers import SOLVERS, make_solver, solver_timesteps
 
@@ -39,8 +40,8 @@ def check_method(method: str) -> None:
 class Guidance:
     """Guidance weights, optionally ramped up over the first steps and capped near the end when editing.
 
-    ramp_fraction: the weights rise linearly from 0 to their value over this fraction of the sampling steps
-    (EDGE's long-form sampling: 0.5). edit_cap_below_t: with a mask, weights above 1 are capped at 1 for
+    ramp_fraction: the weights rise linearly from 0 and reach their value at this fraction of the way from the
+    first sampling step to the last, EDGE's long-form schedule (0.5: ``clip(linspace(0, 2 w, n), max=w)``). edit_cap_below_t: with a mask, weights above 1 are capped at 1 for
     diffusion steps t below this value (EDGE's inpainting: 100); 0 = off.
     """
 
@@ -53,7 +54,7 @@ class Guidance:
         """The plain weights used at sampling step ``step`` (0-based) of ``n_steps``, diffusion step ``t``."""
         scale = 1.0
         if self.ramp_fraction > 0:
-            scale = min(1.0, step / max(self.ramp_fraction * n_steps, 1e-9))
+            scale = min(1.0, step / max(self.ramp_fraction * (n_steps - 1), 1e-9))
         music, style = self.music_weight * scale, self.style_weight * scale
         if masked and t < self.edit_cap_below_t:
             music, style = min(music, 1.0), min(style, 1.0)
@@ -118,12 +119,23 @@ class Sampler:
 
     Denoisers that also offer ``condition(music, style, keep_music, keep_style)`` and accept its result as
     ``fn(x_t, t, cond=...)`` get their conditioning computed once per sampling run instead of once per step.
+
+    ``clip_x0``: the bound of every x0 prediction in normalised units, replacing the run's own
+    (``diffusion.clip_x0``) when given: ``True`` = 1 (EDGE), ``False`` = none, or a positive number.
     """
 
-    def __init__(self, denoiser: torch.nn.Module, diffusion: GaussianDiffusion, *, style_guidance: bool) -> None:
+    def __init__(
+        self,
+        denoiser: torch.nn.Module,
+        diffusion: GaussianDiffusion,
+        *,
+        style_guidance: bool,
+        clip_x0: bool | float | None = None,
+    ) -> None:
         self.denoiser = denoiser
         self.diffusion = diffusion
         self.style_guidance = style_guidance
+        self.x0_bound = diffusion.x0_bound if clip_x0 is None else x0_bound(clip_x0)
 
     def _passes(self, cond: Condition, guidance: Guidance) -> Passes:
         """(keep_music, keep_style) of each pass, the fully conditional pass last."""
@@ -158,7 +170,7 @@ class Sampler:
         else:
             x_u, x_m, x_ms = outs
             x0 = x_u + guidance.music_weight * (x_m - x_u) + guidance.style_weight * (x_ms - x_m)
-        return self.diffusion.clamp(x0)
+        return x0 if self.x0_bound is None else self.diffusion.clamp(x0, self.x0_bound)
 
     def timesteps(self, method: str, steps: int | None, spacing: str = "lambda") -> list[int]:
         """The diffusion steps at which the model is evaluated, descending (the last step goes to x0)."""

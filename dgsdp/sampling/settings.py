@@ -10,6 +10,9 @@ from typing import Any
 from dgsdp.errors import ConfigError
 from dgsdp.sampling.sampler import METHODS, Guidance
 
+# How the windows of a long dance are kept in agreement (dgsdp.generation.longform).
+LONGFORM_MODES = ("fuse", "edge")
+
 
 @dataclass
 class GuidanceSettings:
@@ -26,8 +29,11 @@ class SamplingSettings:
     """Sampler ``method`` and ``steps``, DDIM ``eta``, guidance, long-form windows and batching.
 
     window_frames: None = the model's training window. stride_frames: consecutive long-form windows start this
-    far apart. chunk_size > 0: at most this many windows per denoiser call (memory). batch_size: independent
-    dances sampled together. bf16: autocast on CUDA."""
+    far apart. longform: how the windows of a long dance agree (``fuse``: shared initial noise and fused x0
+    predictions at every step; ``edge``: EDGE's overwrite of each window's first half by its neighbour after every
+    step but the last; see :mod:`dgsdp.generation.longform`). clip_x0: the bound of x0 predictions in normalised
+    units (None: the run's ``diffusion.clip_x0``; the papers: 1). chunk_size > 0: at most this many windows per
+    denoiser call (memory). batch_size: independent dances sampled together. bf16: autocast on CUDA."""
 
     method: str = "dpmpp_2m"  # the default of conf/sampling (dpmpp_2m.yaml); docs/sampling.md says why
     steps: int = 10
@@ -35,6 +41,8 @@ class SamplingSettings:
     guidance: GuidanceSettings = field(default_factory=GuidanceSettings)
     window_frames: int | None = None
     stride_frames: int = 75
+    longform: str = "fuse"
+    clip_x0: float | None = None
     chunk_size: int = 0
     batch_size: int = 64
     bf16: bool = False
@@ -54,6 +62,10 @@ class SamplingSettings:
                 raise ConfigError(f"sampling.{name} must be at least 1, got {getattr(self, name)}")
         if self.window_frames is not None and int(self.window_frames) < 1:
             raise ConfigError(f"sampling.window_frames must be at least 1 (or null), got {self.window_frames}")
+        if self.longform not in LONGFORM_MODES:
+            raise ConfigError(f"sampling.longform={self.longform!r} is not one of {', '.join(LONGFORM_MODES)}")
+        if self.clip_x0 is not None and not float(self.clip_x0) > 0:
+            raise ConfigError(f"sampling.clip_x0 must be a positive bound or null (the run's own), got {self.clip_x0}")
         if int(self.chunk_size) < 0:
             raise ConfigError(f"sampling.chunk_size must be >= 0, got {self.chunk_size}")
         if not 0.0 <= float(self.guidance.longform_ramp_fraction) <= 1.0:

@@ -130,10 +130,10 @@ def test_motion_files(tmp_path):
 
 def test_guidance_ramp_and_edit_cap():
     g = Guidance(2.0, 3.0, ramp_fraction=0.5, edit_cap_below_t=100)
-    # 50 steps, ramp over the first 25: step 0 -> 0, step 10 -> 0.4 of the weights, step 25 on -> full
+    # 50 steps, EDGE's ramp clip(linspace(0, 2w, 50), max=w): step 0 -> 0, step 10 -> 20/49 of the weights
     assert (g.at(0, 50, 999, False).music_weight, g.at(0, 50, 999, False).style_weight) == (0.0, 0.0)
-    assert g.at(10, 50, 799, False).music_weight == pytest.approx(0.8)
-    assert g.at(10, 50, 799, False).style_weight == pytest.approx(1.2)
+    assert g.at(10, 50, 799, False).music_weight == pytest.approx(2.0 * 20 / 49)
+    assert g.at(10, 50, 799, False).style_weight == pytest.approx(3.0 * 20 / 49)
     assert g.at(30, 50, 399, True).music_weight == 2.0
     capped = g.at(49, 50, 19, True)
     assert (capped.music_weight, capped.style_weight) == (1.0, 1.0)

@@ -180,15 +180,18 @@ def test_groups_of_rows_share_a_generator(sampler):
 
 def test_guidance_schedule():
     g = Guidance(music_weight=3.0, style_weight=2.0, ramp_fraction=0.5, edit_cap_below_t=100)
-    # ramp: weights rise linearly over the first half of 10 steps (step / 5), then stay
-    for step, scale in ((0, 0.0), (1, 0.2), (4, 0.8), (5, 1.0), (9, 1.0)):
+    # ramp: EDGE's long-form weights, clip(linspace(0, 2 w, n), max=w), computed here as EDGE's code does
+    edge_music = np.clip(np.linspace(0, 2 * 3.0, 10), None, 3.0)
+    edge_style = np.clip(np.linspace(0, 2 * 2.0, 10), None, 2.0)
+    for step in range(10):
         w = g.at(step, 10, t=500, masked=False)
-        assert (w.music_weight, w.style_weight) == pytest.approx((3.0 * scale, 2.0 * scale))
+        assert (w.music_weight, w.style_weight) == pytest.approx((edge_music[step], edge_style[step]))
+    assert g.at(4, 10, t=500, masked=False).music_weight == pytest.approx(3.0 * 4 / 4.5)
     # cap: with a mask, weights above 1 are capped at 1 below t = 100; not without a mask, not above
     assert (g.at(9, 10, t=99, masked=True).music_weight, g.at(9, 10, t=99, masked=True).style_weight) == (1.0, 1.0)
     assert g.at(9, 10, t=99, masked=False).music_weight == 3.0
     assert g.at(9, 10, t=100, masked=True).music_weight == 3.0
-    assert g.at(1, 10, t=50, masked=True).music_weight == pytest.approx(0.6)  # below 1: not raised
+    assert g.at(1, 10, t=50, masked=True).music_weight == pytest.approx(edge_music[1])  # below 1: not raised
     plain = Guidance(2.0, 1.5).at(0, 10, t=999, masked=True)
     assert (plain.music_weight, plain.style_weight) == (2.0, 1.5)
 
