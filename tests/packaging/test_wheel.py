@@ -27,6 +27,7 @@ SCRIPTS = (
     "dgsdp-report",
     "dgsdp-synth",
     "dgsdp-studio",
+    "dgsdp-import-edge",
 )
 
 

@@ -16,7 +16,10 @@ from dgsdp.interop.edge.verify import TOLERANCE
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m dgsdp.interop.edge", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(
+        prog="python -m dgsdp.interop.edge",
+        description="Import EDGE's released checkpoint as a dgsdp checkpoint, or verify an import against EDGE's code.",
+    )
     sub = p.add_subparsers(dest="command", required=True)
     imp = sub.add_parser("import", help="write EDGE's checkpoint as a dgsdp checkpoint")
     imp.add_argument("edge_ckpt", help="EDGE's checkpoint.pt")
@@ -45,7 +48,9 @@ def main(argv: list[str] | None = None) -> int:
 
             out = import_edge(args.edge_ckpt, args.out, weights=args.weights, floor_height=args.floor_height)
             print(f"wrote {out}")
-            print(f"next: python generate.py checkpoint={out} music=<song or folder>   (EDGE's own sampling: add sampling=edge)")
+            print(
+                f"next: python generate.py checkpoint={out} music=<song or folder>   (EDGE's own sampling: add sampling=edge)"
+            )
             return 0
         from dgsdp.interop.edge.verify import verify
 

@@ -155,13 +155,18 @@ def edge_architecture(state: dict[str, torch.Tensor]) -> EdgeArchitecture:
         encoder_layers=_count(state, r"cond_encoder\.(\d+)\."),
     )
     if d % (2 * EDGE_HEADS):
-        raise CheckpointError(f"width {d} is not a multiple of {2 * EDGE_HEADS} (EDGE's {EDGE_HEADS} heads, rotary pairs)")
+        raise CheckpointError(
+            f"width {d} is not a multiple of {2 * EDGE_HEADS} (EDGE's {EDGE_HEADS} heads, rotary pairs)"
+        )
     expected = arch.expected_shapes()
     missing = sorted(set(expected) - set(state))
     extra = sorted(set(state) - set(expected))
     wrong = [f"{k} {tuple(state[k].shape)} (expected {expected[k]})" for k in expected if k in state and tuple(state[k].shape) != expected[k]]  # fmt: skip
     if missing or extra or wrong:
-        parts = [f"missing: {', '.join(missing[:8])}" if missing else "", f"unexpected: {', '.join(extra[:8])}" if extra else ""]
+        parts = [
+            f"missing: {', '.join(missing[:8])}" if missing else "",
+            f"unexpected: {', '.join(extra[:8])}" if extra else "",
+        ]
         parts.append(f"wrong shapes: {', '.join(wrong[:8])}" if wrong else "")
         raise CheckpointError(
             f"the weights do not match EDGE's DanceDecoder ({'; '.join(p for p in parts if p)})"

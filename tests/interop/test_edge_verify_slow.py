@@ -1,0 +1,54 @@
+"""Against EDGE's own code: checkpoints written by EDGE's own classes (its DanceDecoder with random weights, its
+Normalizer fitted by its own code) import, and ``verify`` finds our sampling equal to EDGE's ``long_ddim_sample``.
+
+Needs a checkout of EDGE (Stanford-TML/EDGE) named by ``DGSDP_EDGE_SRC`` and EDGE's ``einops``; skipped otherwise."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from dgsdp.interop.edge.__main__ import main
+from dgsdp.interop.edge.verify import edge_code
+
+EDGE_SRC = os.environ.get("DGSDP_EDGE_SRC")
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(not EDGE_SRC, reason="set DGSDP_EDGE_SRC to a checkout of EDGE's repository"),
+]
+
+
+def write_with_edges_code(path: Path, feature_dim: int) -> None:
+    pytest.importorskip("einops")
+    with edge_code(EDGE_SRC) as (edge, _):
+        torch.manual_seed(feature_dim)
+        model = edge["DanceDecoder"](
+            nfeats=151, seq_len=150, latent_dim=64, ff_size=128, num_layers=2, num_heads=8, dropout=0.1,
+            cond_feature_dim=feature_dim, activation=F.gelu,
+        )  # fmt: skip
+        data = torch.randn(10, 150, 151)
+        data[..., :4] = (data[..., :4] > 0).float()
+        data[..., 4:7] = 0.3 * data[..., 4:7] + torch.tensor([0.0, 0.0, 0.9])
+        normalizer = edge["Normalizer"](data)  # EDGE's own fit
+        state = model.state_dict()
+        torch.save({"ema_state_dict": state, "model_state_dict": state, "optimizer_state_dict": {},
+                    "normalizer": normalizer}, path)  # fmt: skip
+
+
+@pytest.mark.parametrize("feature_dim", [35, 4800])
+def test_verify_against_edges_code(tmp_path, capsys, feature_dim):
+    ckpt = tmp_path / "checkpoint.pt"
+    write_with_edges_code(ckpt, feature_dim)
+    assert main(["import", str(ckpt), str(tmp_path / "edge.ckpt"), "--floor-height", "0"]) == 0
+    code = main(["verify", "--edge-src", EDGE_SRC, str(ckpt), "--windows", "3"])
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    fields = dict(part.split("=") for part in last.split())
+    assert set(fields) == {"max_abs_diff", "denoiser_max_abs_diff"}
+    assert float(fields["max_abs_diff"]) < 1e-4 and float(fields["denoiser_max_abs_diff"]) < 1e-4
+    assert code == 0
+    # a tolerance no float32 computation meets makes it fail: the check can fail
+    assert main(["verify", "--edge-src", EDGE_SRC, str(ckpt), "--windows", "2", "--tolerance", "1e-12"]) == 1
