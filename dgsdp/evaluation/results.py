@@ -47,6 +47,9 @@ def results_markdown(results: Mapping[str, Any]) -> str:
     if run.get("run_name"):
         title += f", run {run['run_name']} (seed {run.get('seed')})"
     out = [title, "", f"Checkpoint: `{results.get('checkpoint', '?')}`", ""]
+    sampling = (results.get("settings") or {}).get("sampling")
+    if sampling:
+        out[-1:] = [f"Sampling: {sampling_summary(sampling)}", ""]
     out.append(markdown_table(["row", *metrics, "trials"], rows))
     notes = [f"- {r['name']}: {r['notes']}" for r in results["rows"] if r.get("notes")]
     if notes:
@@ -55,6 +58,19 @@ def results_markdown(results: Mapping[str, Any]) -> str:
         out.append("Warnings (values reported as n/a or from a documented fallback):")
         out += [f"- {w['row']} / {w['metric']}: {w['message']}" for w in results["warnings"]]
     return "\n".join(out) + "\n"
+
+
+def sampling_summary(sampling: Mapping[str, Any]) -> str:
+    """One line saying how the dances were sampled, e.g. ``ddim, 50 steps, eta 1, long-form edge, x0 clip 1``."""
+    method, steps = sampling.get("method", "?"), sampling.get("steps", "?")
+    parts = [f"{method}, {steps} steps"]
+    if method == "ddim":
+        parts.append(f"eta {sampling.get('eta', '?'):g}" if isinstance(sampling.get("eta"), int | float) else "eta ?")
+    parts.append(f"long-form {sampling.get('longform', 'fuse')}")
+    clip = sampling.get("clip_x0")
+    parts.append("x0 clip of the run" if clip is None else f"x0 clip {clip:g}")
+    preset = " (the papers' sampling, sampling=edge)" if sampling.get("longform") == "edge" and method == "ddim" else ""
+    return ", ".join(parts) + preset
 
 
 def _stats(summary: Mapping[str, Any]) -> dict[str, Any]:

@@ -255,3 +255,23 @@ def test_clear_errors(trained_run, tmp_path):
     cfg = compose_eval(trained_run, tmp_path / "x", "protocol=table2", "protocol.trials=1")
     with pytest.raises(DataError, match="lengths_seconds"):
         evaluate(cfg)  # 7.5 s and 10 s clips do not fit the 7 s dances
+
+
+def test_protocols_and_sweeps_sample_as_the_papers_and_say_so(tmp_path):
+    from omegaconf import OmegaConf
+
+    from dgsdp.evaluation.results import results_markdown
+    from dgsdp.resources import SWEEPS_DIR
+
+    papers = compose_config("evaluate", [], output_dir=tmp_path).sampling
+    assert (papers.method, papers.steps, papers.eta, papers.clip_x0, papers.longform) == ("ddim", 50, 1.0, 1.0, "edge")
+    assert papers.guidance.music == 2.0
+    fast = compose_config("evaluate", ["sampling=dpmpp_2m"], output_dir=tmp_path).sampling
+    assert (fast.method, fast.steps, fast.longform, fast.clip_x0) == ("dpmpp_2m", 10, "fuse", None)
+    for sweep in sorted(SWEEPS_DIR.glob("table*.yaml")):
+        assert OmegaConf.load(sweep).evaluate_overrides[0] == "sampling=edge", sweep.name
+    results = {"protocol": "table1", "rows": [], "metrics": [],
+               "settings": {"sampling": OmegaConf.to_container(papers)}}  # fmt: skip
+    assert "Sampling: ddim, 50 steps, eta 1, long-form edge, x0 clip 1 (the papers' sampling" in results_markdown(
+        results
+    )
