@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import abc
 import math
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import librosa
@@ -60,6 +61,18 @@ def resample_frames(features: np.ndarray, rate_hz: float, fps: float, res_type: 
     return np.ascontiguousarray(out.T, dtype=np.float32)
 
 
+def _mono(waveform: np.ndarray) -> np.ndarray:
+    """A finite mono float32 waveform from ``(samples,)`` or ``(channels, samples)``, or an AudioError."""
+    waveform = np.asarray(waveform, dtype=np.float32)
+    if waveform.ndim == 2:
+        waveform = waveform.mean(axis=0)
+    if waveform.ndim != 1:
+        raise AudioError(f"Expected a (samples,) or (channels, samples) waveform, got {waveform.shape}.")
+    if not np.all(np.isfinite(waveform)):
+        raise AudioError("The waveform contains NaN or infinite samples; check the audio file.")
+    return waveform
+
+
 class AudioEncoder(abc.ABC):
     """Base class of the interchangeable audio encoders (librosa, Encodec, Jukebox).
 
@@ -75,6 +88,9 @@ class AudioEncoder(abc.ABC):
     # Settings added after runs were first trained, with the value those runs used: a checkpoint whose stored
     # audio config lacks one was trained with that value (the constructor default may differ).
     legacy_settings: ClassVar[dict[str, Any]] = {}
+    # EDGE's procedure (its test.py and its training data): every generation window gets features computed from
+    # its own audio alone (:meth:`encode_windows`), not cut from the whole song's. Set by ``audio.per_window``.
+    per_window: bool = False
 
     @abc.abstractmethod
     def settings(self) -> dict[str, Any]:
@@ -104,13 +120,7 @@ class AudioEncoder(abc.ABC):
         down-mixed here). ``n_frames`` defaults to ``floor(duration_seconds * fps)``; the features are
         truncated to that song length, then truncated or edge-padded (last frame repeated) to ``n_frames``.
         """
-        waveform = np.asarray(waveform, dtype=np.float32)
-        if waveform.ndim == 2:
-            waveform = waveform.mean(axis=0)
-        if waveform.ndim != 1:
-            raise AudioError(f"Expected a (samples,) or (channels, samples) waveform, got {waveform.shape}.")
-        if not np.all(np.isfinite(waveform)):
-            raise AudioError("The waveform contains NaN or infinite samples; check the audio file.")
+        waveform = _mono(waveform)
         min_samples = math.ceil(sample_rate / self.fps)
         if waveform.shape[0] < min_samples:
             raise AudioError(
@@ -132,6 +142,28 @@ class AudioEncoder(abc.ABC):
         # First the song's own length, so that padding repeats the last frame inside the audio.
         features = fit_frames(fit_frames(features, song_frames), int(n_frames))
         return np.ascontiguousarray(features, dtype=np.float32)
+
+    def encode_windows(
+        self,
+        waveform: np.ndarray,
+        sample_rate: int,
+        starts: Sequence[int],
+        window_frames: int,
+        music_id: str | None = None,
+    ) -> np.ndarray:
+        """Features ``(len(starts), window_frames, feature_dim)``: window k's computed from its own audio alone,
+        the ``window_frames / fps`` seconds from frame ``starts[k]`` on, as EDGE's test.py encodes each 5 s slice
+        file of a song (slices every 2.5 s). Audio past the end of the song is silence."""
+        waveform = _mono(waveform)
+        length = int(round(window_frames * sample_rate / self.fps))
+        out = []
+        for start in starts:
+            first = int(round(int(start) * sample_rate / self.fps))
+            piece = waveform[first : first + length]
+            if len(piece) < length:
+                piece = np.pad(piece, (0, length - len(piece)))
+            out.append(self.encode(piece, sample_rate, n_frames=int(window_frames), music_id=music_id))
+        return np.stack(out).astype(np.float32, copy=False)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.settings()})"

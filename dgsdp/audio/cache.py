@@ -86,6 +86,29 @@ class FeatureCache:
             features = fit_frames(features, int(n_frames))
         return features.astype(np.float32, copy=False)
 
+    def windows_for_file(
+        self,
+        encoder: AudioEncoder,
+        audio_path: str | os.PathLike,
+        starts: list[int],
+        window_frames: int,
+        music_id: str | None = None,
+    ) -> np.ndarray:
+        """Per-window features ``(len(starts), window_frames, feature_dim)`` of a file
+        (:meth:`AudioEncoder.encode_windows`), cached like whole-song features under a key of the layout too."""
+        cache = self.disk_cache(encoder)
+        layout = stable_hash({"starts": [int(s) for s in starts], "window_frames": int(window_frames)})
+        key = f"{self.key(encoder, audio_path, music_id)}-windows-{layout}"
+
+        def compute() -> dict[str, np.ndarray]:
+            waveform, rate_hz = load_audio(audio_path, sample_rate=encoder.sample_rate, mono=True)
+            try:
+                return {FEATURES_KEY: encoder.encode_windows(waveform, rate_hz, starts, window_frames, music_id)}
+            except AudioError as e:
+                raise AudioError(f"{audio_path}: {e}") from e
+
+        return cache.get_or_compute(key, compute, required=(FEATURES_KEY,))[FEATURES_KEY].astype(np.float32)
+
 
 @dataclass
 class ExtractionSummary:

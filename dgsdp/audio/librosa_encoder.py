@@ -72,6 +72,7 @@ class LibrosaEncoder(AudioEncoder):
         loudness_lufs: float | None = -23.0,
         standardize: str = "mean_std",
         mfcc_fmax_hz: float | None = 3500.0,
+        per_window: bool = False,
     ) -> None:
         if sample_rate % hop_length != 0 or sample_rate // hop_length != self.fps:
             raise ValueError(f"sample_rate / hop_length must equal {self.fps} FPS, got {sample_rate} / {hop_length}")
@@ -91,6 +92,7 @@ class LibrosaEncoder(AudioEncoder):
             raise ConfigError(f"mfcc_fmax_hz must lie in [1000, {sample_rate / 2:g}] Hz or be null, got {mfcc_fmax_hz}")
         self.mfcc_fmax_hz = None if mfcc_fmax_hz is None else float(mfcc_fmax_hz)
         self.feature_dim = 1 + self.n_mfcc + self.n_chroma + 2
+        self.per_window = bool(per_window)  # not a settings() key: whole-song features are the same
 
     def settings(self) -> dict[str, Any]:
         return {

@@ -77,6 +77,11 @@ def check_config(cfg: DictConfig) -> dict[str, Any] | None:
         raise ConfigError(f"trainer.devices must be a positive number, 'auto' or a list of ids, got {devices!r}")
     if cfg.get("evaluate"):
         check_options("protocol", as_list(cfg.evaluate) or [], "evaluate")
+    if (cfg.get("audio") or {}).get("per_window"):
+        raise ConfigError(
+            "audio.per_window=true is EDGE's generation procedure (each window's features from its own audio), set "
+            "by the EDGE import; training reads whole-song features: leave audio.per_window=false"
+        )
     if not cfg.get("ckpt_path"):
         return None
     checkpoint = read_checkpoint(str(cfg.ckpt_path))

@@ -36,6 +36,7 @@ class Clip:
     n_frames: int
     beats_30fps: np.ndarray  # (K,) music beat frames relative to ``start``
     index: int = 0  # place among the protocol's clips of this length (decides the clip's seed)
+    music_file: Path | None = None  # the song (for encoders that compute each window's features from its audio)
 
     @property
     def motion(self) -> np.ndarray:
@@ -130,9 +131,10 @@ class ClipSource:
                 starts = window_starts(len(seq.motion), n_frames, int(round(self.spec.stride_seconds * MODEL_FPS)))
                 n = n_frames
             beats = self.music_beats(seq)
+            song = music_path(self.data_root, seq.music_id)
             for s in starts:
                 rel = beats[(beats >= s) & (beats < s + n)] - s
-                out.append(Clip(seq, s, n, rel, index=len(out)))
+                out.append(Clip(seq, s, n, rel, index=len(out), music_file=song))
         if self.spec.max_dances is not None:
             out = out[: self.spec.max_dances]
         if len(out) < 2:

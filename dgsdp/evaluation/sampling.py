@@ -16,17 +16,32 @@ from dgsdp.sampling import SamplingSettings
 
 
 def clip_requests(
-    generator: DanceGenerator, clips: list[Clip], variant: Variant, spec: ProtocolSpec, *, seed: int, trial: int
+    generator: DanceGenerator,
+    clips: list[Clip],
+    variant: Variant,
+    spec: ProtocolSpec,
+    *,
+    seed: int,
+    trial: int,
+    sampling: SamplingSettings | None = None,
 ) -> list[DanceRequest]:
     """One request per clip: its music, its genre's style (the style bank's mean, as ``style=<genre>`` in
-    generate.py), the variant's editing mask with the real dance as the given motion, and the clip's seed."""
+    generate.py), the variant's editing mask with the real dance as the given motion, and the clip's seed.
+    A model whose encoder computes each window's features from its own audio (EDGE's) gets them so, for the
+    long-form windows of ``sampling`` over the clip."""
     model = generator.model
+    per_window = generator.audio_encoder is not None and generator.audio_encoder.per_window
     requests = []
     for clip in clips:
         s = clip_seed(seed, trial, clip.index)
         genre = torch.tensor([clip.seq.genre_index], device=model.device)
         style = model.style_for(genre, random=False)
         music = clip.music()
+        if per_window and music is not None and clip.music_file is not None:
+            windows = generator.music_windows(
+                clip.music_file, clip.start, clip.n_frames, sampling, music_id=clip.seq.music_id
+            )
+            music = windows.numpy()
         mask = known = None
         if variant.task != "none":
             mask = build_mask(
@@ -62,7 +77,7 @@ def sample_clips(
     The model's raw output is scored unless ``cleanup`` finishes the dances as generate.py does
     (:meth:`DanceGenerator.finish`: retimed onto the clip's beats where nothing is given, feet on the floor)."""
     settings = dataclasses.replace(sampling, guidance=dataclasses.replace(sampling.guidance, music=variant.weight))
-    requests = clip_requests(generator, clips, variant, spec, seed=seed, trial=trial)
+    requests = clip_requests(generator, clips, variant, spec, seed=seed, trial=trial, sampling=settings)
     motions = generator.generate_many(requests, settings)
     if cleanup:
         motions = [generator.finish(m, c.beats_30fps, mask=r.mask) for m, c, r in zip(motions, clips, requests)]

@@ -210,7 +210,8 @@ class ChunkedDenoiser(nn.Module):
 
 @dataclass
 class DanceRequest:
-    """One dance to make: ``n_frames`` at 30 FPS, music features (n_frames, Da) or None, style (ds,), per frame
+    """One dance to make: ``n_frames`` at 30 FPS, music features (n_frames, Da), per long-form window
+    (n_windows, window, Da) or None, style (ds,), per frame
     (n_frames, ds) or None, an optional editing mask with the given motion (both (n_frames, 151), unnormalised),
     the number of samples, and where its noise comes from: a seed (or a generator to draw from) of its own, so the
     same request with the same seed gives the same dance, alone or in a batch; None uses the global RNG."""
@@ -274,7 +275,14 @@ def sample_items(
             return w.repeat(it.num_samples, *([1] * (w.ndim - 1)))
 
         rows.append(it.num_samples * n_win)
-        if it.music is not None:
+        if it.music is not None and it.music.ndim == 3:  # features per window already (EDGE's procedure)
+            if tuple(it.music.shape[:2]) != (n_win, window):
+                raise ValueError(
+                    f"per-window music features {tuple(it.music.shape)} do not match the {n_win} windows of "
+                    f"{window} frames of a {it.n_frames}-frame dance (stride {stride})"
+                )
+            music.append(it.music.to(device).repeat(it.num_samples, 1, 1))
+        elif it.music is not None:
             music.append(windows_of(it.music))
         if it.style is not None:
             s = it.style.to(device)

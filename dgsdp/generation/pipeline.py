@@ -24,7 +24,7 @@ from dgsdp.audio.io import AUDIO_SUFFIXES
 from dgsdp.editing import build_mask, check_task, place_known
 from dgsdp.errors import AudioError, ConfigError
 from dgsdp.generation.beatsync import BeatSync, song_beats, sync_to_beats
-from dgsdp.generation.longform import DanceRequest, sample_items
+from dgsdp.generation.longform import DanceRequest, WindowLayout, sample_items
 from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styles
 from dgsdp.motion import POSE_DIM, FloorCleanup, clean_motion, pose_to_joints, unpack_pose
 from dgsdp.sampling import SamplingSettings
@@ -147,10 +147,25 @@ class DanceGenerator:
             )
         return seconds
 
-    def music_features(self, path: Path, seconds: float | None = None) -> tuple[torch.Tensor | None, int]:
-        """Music features (T, Da) at 30 FPS of the whole song (or its first ``seconds``), and T."""
+    def window_layout(self, sampling: SamplingSettings | None = None) -> tuple[int, int]:
+        """The long-form window and stride (frames) that ``sampling`` gives this model."""
+        sampling = sampling or SamplingSettings()
+        window = min(sampling.window_frames or self.window, self.model.denoiser.seq_len)
+        return window, min(sampling.stride_frames, window)
+
+    def music_features(
+        self, path: Path, seconds: float | None = None, sampling: SamplingSettings | None = None
+    ) -> tuple[torch.Tensor | None, int]:
+        """Music features (T, Da) at 30 FPS of the whole song (or its first ``seconds``), and T. An encoder with
+        ``per_window`` (EDGE's procedure) gives each long-form window of ``sampling`` its own features instead:
+        (n_windows, window, Da), each computed from the window's own audio."""
         duration = self.check_duration(path)
         limit = None if seconds is None else int(round(seconds * self.fps))
+        if self.audio_encoder is not None and self.audio_encoder.per_window:
+            n = int(duration * self.fps) if limit is None else min(int(duration * self.fps), limit)
+            if n < 1:
+                raise AudioError(f"{path.name} is shorter than one motion frame ({1 / self.fps:.3f} s)")
+            return self.music_windows(path, 0, n, sampling), n
         if self.audio_encoder is None:
             n = int(duration * self.fps)
             n = n if limit is None else min(n, limit)
@@ -163,6 +178,25 @@ class DanceGenerator:
         if len(feats) < 1:
             raise AudioError(f"{path.name} is shorter than one motion frame ({1 / self.fps:.3f} s)")
         return torch.from_numpy(np.array(feats)), len(feats)  # a copy: the cached array is read-only
+
+    def music_windows(
+        self,
+        path: Path,
+        start_frame: int,
+        n_frames: int,
+        sampling: SamplingSettings | None = None,
+        music_id: str | None = None,
+    ) -> torch.Tensor:
+        """Features (n_windows, window, Da) of the long-form windows of ``sampling`` over frames
+        ``start_frame .. start_frame + n_frames`` of a song, each computed from its own audio (encoders with
+        ``per_window``: EDGE's procedure); cached."""
+        if self.audio_encoder is None:
+            raise ConfigError("this model has no music input")
+        window, stride = self.window_layout(sampling)
+        starts = [start_frame + s for s in WindowLayout(n_frames, window, stride).starts()]
+        music_id = path.stem if music_id is None else music_id
+        windows = self.cache.windows_for_file(self.audio_encoder, path, starts, window, music_id=music_id)
+        return torch.from_numpy(np.array(windows))
 
     @property
     def style_dim(self) -> int:
@@ -247,8 +281,7 @@ class DanceGenerator:
         ``sampling.batch_size`` requests of the same length and editing state. A request's result depends only on
         the request and its seed, not on the batch it was sampled in."""
         sampling = sampling or SamplingSettings()
-        window = min(sampling.window_frames or self.window, self.model.denoiser.seq_len)
-        stride = min(sampling.stride_frames, window)
+        window, stride = self.window_layout(sampling)
         groups: dict[tuple[int, bool], list[int]] = {}
         for i, r in enumerate(requests):
             if r.n_frames < 1:
@@ -291,7 +324,7 @@ class DanceGenerator:
         """Motions (num_samples, T, 151) danced to a whole song (or its first ``seconds``) in a resolved style,
         with an optional editing task: music features, style per frame, editing mask, then :meth:`generate`.
         ``cleanup`` and ``beat_sync``: see :meth:`finish`."""
-        music, n_frames = self.music_features(song, seconds)
+        music, n_frames = self.music_features(song, seconds, sampling)
         style = self.style_frames(plan, n_frames, blend_seconds)
         mask, known = self.edit_inputs(edit or EditSettings(), n_frames)
         motions = self.generate(

@@ -276,6 +276,8 @@ def test_evaluate_runs_on_the_imported_model(imported35, tmp_path):
     assert row["guidance"] == 2.0 and row["n_dances"] == 2
     assert all(math.isfinite(row["metrics"][m]["mean"]) for m in ("BeatAlign", "PFC", "Div_k"))
     json.dumps(results)  # plain data
+    # each clip's windows got features from their own audio (EDGE's procedure), cached as such
+    assert list((tmp_path / "cache").rglob("*-windows-*"))
 
 
 def test_studio_generates_with_the_imported_model(imported35, song, tmp_path):
@@ -289,3 +291,31 @@ def test_studio_generates_with_the_imported_model(imported35, song, tmp_path):
     args = [str(imported35), None, "", [], 2.0, 1.0, "ddim", 2, 0, False]
     value, files, state, status = studio.on_generate(str(song), *args, progress=lambda *a, **k: None)
     assert np.load(state["motion"]).shape == (240, 151) and "240 frames (8.0 s)" in status
+
+
+def test_per_window_features_are_each_windows_own_audio(tmp_path):
+    """EDGE's procedure: window k's features are the encoder's features of its own 5 s of audio (silence past the
+    song's end), computed here by slicing the waveform by hand."""
+    from dgsdp.audio import LibrosaEncoder
+
+    encoder = LibrosaEncoder(loudness_lufs=None, standardize="none", mfcc_fmax_hz=None, per_window=True)
+    rate = 15360
+    t = np.arange(int(7.3 * rate)) / rate
+    wave = (0.3 * np.sin(2 * np.pi * 220 * t) * (np.sin(2 * np.pi * 2 * t) > 0)).astype(np.float32)
+    windows = encoder.encode_windows(wave, rate, [0, 75, 150], 150, music_id=None)
+    assert windows.shape == (3, 150, 35)
+    for k, start in enumerate((0.0, 2.5, 5.0)):
+        piece = wave[int(start * rate) : int(start * rate) + 5 * rate]
+        piece = np.pad(piece, (0, 5 * rate - len(piece)))
+        np.testing.assert_allclose(windows[k], encoder.encode(piece, rate, n_frames=150), atol=1e-6)
+    # not the same as cutting the song's features: the second window's own beat track and envelope
+    whole = encoder.encode(wave, rate)
+    assert np.abs(windows[1][: len(whole) - 75] - whole[75:]).max() > 1e-3
+
+
+def test_training_refuses_per_window_features():
+    from dgsdp.cli.config import compose_config
+    from dgsdp.cli.train import check_config
+
+    with pytest.raises(CheckpointError.__mro__[1], match="audio.per_window=true is EDGE's generation procedure"):
+        check_config(compose_config("train", ["debug=tiny", "audio.per_window=true"]))

@@ -28,10 +28,14 @@ log = logging.getLogger(__name__)
 # How EDGE's test.py samples (EDGE.py, model/diffusion.py): recorded with every import.
 EDGE_SAMPLING = {"guidance_weight": 2.0, "window_frames": 150, "stride_frames": 75, "fps": 30, "ddim_steps": 50}
 # audio config group and overrides per EDGE feature type
+# (EDGE trained and sampled on features computed per 5 s slice: per_window)
 AUDIO_OVERRIDES = {
-    "jukebox": ["audio=jukebox"],
-    "baseline": ["audio=librosa", "audio.loudness_lufs=null", "audio.standardize=none", "audio.mfcc_fmax_hz=null"],
-}
+    "jukebox": ["audio=jukebox", "audio.per_window=true"],
+    "baseline": [
+        "audio=librosa", "audio.loudness_lufs=null", "audio.standardize=none", "audio.mfcc_fmax_hz=null",
+        "audio.per_window=true",
+    ],
+}  # fmt: skip
 PAPER_SIZE = {"d_model": 512, "n_layers": 8, "ff_dim": 1024, "seq_len": 150}
 FLOOR_SAMPLES = 8
 
