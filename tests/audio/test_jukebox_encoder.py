@@ -59,6 +59,19 @@ def test_stand_in_slices_normalises_and_resamples_a_long_song():
     np.testing.assert_allclose(features[:, 2], 5 * SR, rtol=1e-5)  # every slice full length
 
 
+def test_per_window_features_encode_each_window_as_its_own_slice():
+    """EDGE's test.py: every 5 s window (2.5 s apart) is its own slice file, encoded from an empty context; the
+    window past the song's end is padded with silence."""
+    encoder = StandIn(per_window=True)
+    y = np.concatenate([np.full(5 * SR, 0.5), np.full(4 * SR, 0.25)]).astype(np.float32)  # 9 s
+    windows = encoder.encode_windows(y, SR, [0, 75, 150], 150)
+    assert windows.shape == (3, 150, 3) and encoder.slices == 3
+    for k in range(3):
+        np.testing.assert_allclose(windows[k, :, 0], k, atol=1e-4)  # one slice per window, in order
+    np.testing.assert_allclose(windows[..., 2], 5 * SR, rtol=1e-5)  # each a full 5 s slice (the last padded)
+    np.testing.assert_allclose(windows[..., 1], 1.0, atol=1e-4)  # each peak-normalised on its own
+
+
 def test_stand_in_short_and_silent_audio():
     encoder = StandIn()
     short = encoder.encode(np.full(int(0.2 * SR), 0.5, np.float32), SR)

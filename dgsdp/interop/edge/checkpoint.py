@@ -2,7 +2,7 @@
 
 EDGE saves ``{"ema_state_dict", "model_state_dict", "optimizer_state_dict", "normalizer"}`` with ``torch.save``;
 the normaliser is a pickled ``dataset.preprocess.Normalizer`` holding a ``dataset.scaler.MinMaxScaler``.
-``torch.load(weights_only=True)`` refuses those two classes, and ``weights_only=False`` would call whatever
+``torch.load(weights_only=True)`` refuses those two classes, and a full unpickling would call whatever
 global the pickle names. Here torch's weights-only unpickler reads the file with exactly two extra globals
 allowed: two empty stand-in classes of ours under EDGE's names, which only receive the attributes stored in the
 file (no ``__init__`` or ``__setstate__`` of anyone's runs). Every other global is refused by torch before
@@ -85,7 +85,7 @@ def read_edge_checkpoint(path: str | Path) -> EdgeCheckpoint:
         raise UnsafeCheckpointError(
             f"{p} was refused: it asks for {what}, which could run code on this machine. EDGE's checkpoints hold "
             "only tensors and its Normalizer/MinMaxScaler; nothing was loaded. Do not open this file with "
-            "torch.load(weights_only=False) or EDGE's own code either; get the checkpoint from EDGE's release"
+            "a full torch.load or EDGE's own code either; get the checkpoint from EDGE's release"
         ) from e
     except Exception as e:  # noqa: BLE001 - truncated or corrupt archives raise many types
         first = str(e).strip().splitlines()[0][:300] if str(e).strip() else ""
