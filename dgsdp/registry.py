@@ -6,8 +6,10 @@ their own code and may name any class: its module is imported, and a class that 
 checkpoint) is data: only classes already in the registry are built, nothing is imported, no value is evaluated,
 and anything else is refused with a :class:`~dgsdp.errors.CheckpointError` that names the key and the value.
 
-A new audio encoder, style embedding, text encoder, loss or sampler plugs in by decorating its class with
-``@register("audio")`` (or the kind it is) in its own file and naming it in a config file.
+The project's own classes are listed below by import path (:data:`BUILTINS`) and imported only when a config
+names one, so the registry imports none of the packages it lists. A new audio encoder, style embedding, text
+encoder, loss or sampler of yours plugs in by decorating its class with ``@register("audio")`` (or the kind it is)
+in its own file and naming it in a config file.
 """
 
 from __future__ import annotations
@@ -22,8 +24,47 @@ from dgsdp.errors import CheckpointError, ConfigError
 Kind = Literal["audio", "style", "text_encoder", "model", "diffusion", "loss", "optimizer"]
 Source = Literal["config", "checkpoint"]
 
-# "<kind>" -> {"<module>.<Class>" and public aliases -> class}
+# "<kind>" -> {"<module>.<Class>" and public aliases -> class}: classes registered with @register
 _REGISTRY: dict[str, dict[str, type]] = {}
+
+
+def _names(public: str, module: str, cls: str, *more: str) -> dict[str, str]:
+    """The names a built-in class answers to (its public alias and its full path) -> ``"module:Class"``."""
+    return dict.fromkeys((public, f"{module}.{cls}", *more), f"{module}:{cls}")
+
+
+# The project's own buildable classes, by the names configs and stored checkpoints use; imported on first use.
+BUILTINS: dict[str, dict[str, str]] = {
+    "audio": {
+        **_names("dgsdp.audio.LibrosaEncoder", "dgsdp.audio.librosa_encoder", "LibrosaEncoder"),
+        **_names("dgsdp.audio.EncodecEncoder", "dgsdp.audio.encodec_encoder", "EncodecEncoder"),
+        **_names("dgsdp.audio.JukeboxEncoder", "dgsdp.audio.jukebox_encoder", "JukeboxEncoder"),
+    },
+    "style": _names("dgsdp.style.StyleEmbedder", "dgsdp.style.embeddings", "StyleEmbedder"),
+    "text_encoder": {
+        **_names("dgsdp.style.MiniLMTextEncoder", "dgsdp.style.text_encoders", "MiniLMTextEncoder"),
+        **_names("dgsdp.style.ClipTextEncoder", "dgsdp.style.text_encoders", "ClipTextEncoder"),
+    },
+    "model": _names("dgsdp.model.DanceDenoiser", "dgsdp.model.denoiser", "DanceDenoiser"),
+    "diffusion": _names("dgsdp.diffusion.GaussianDiffusion", "dgsdp.diffusion.gaussian", "GaussianDiffusion"),
+    "loss": _names("dgsdp.diffusion.LossWeights", "dgsdp.diffusion.losses", "LossWeights"),
+    "optimizer": {
+        "adan_pytorch.Adan": "adan_pytorch:Adan",
+        "torch.optim.AdamW": "torch.optim:AdamW",
+        "torch.optim.adamw.AdamW": "torch.optim:AdamW",
+    },
+}
+
+
+def _builtin(kind: str, name: str) -> type | None:
+    """The built-in class ``name`` of ``kind`` (its module imported now), or None if there is none."""
+    path = BUILTINS.get(kind, {}).get(name)
+    if path is None:
+        return None
+    module, _, cls = path.partition(":")
+    return getattr(importlib.import_module(module), cls)
+
+
 # Keys of a buildable node that steer Hydra-style building; anything else starting with "_" is refused.
 _SPECIAL_KEYS = {"_target_", "_partial_", "_recursive_", "_convert_"}
 _PLAIN = (str, int, float, bool, type(None))
@@ -44,30 +85,10 @@ def register(kind: Kind, *aliases: str) -> Callable[[type], type]:
     return deco
 
 
-def register_external(kind: Kind, target: str, *aliases: str) -> None:
-    """Register a class from another package (e.g. an optimiser) by its import path."""
-    module, _, name = target.rpartition(".")
-    cls = getattr(importlib.import_module(module), name)
-    for alias in (target, *aliases):
-        _REGISTRY.setdefault(kind, {})[alias] = cls
-
-
 def registered(kind: Kind) -> dict[str, type]:
-    """The buildable classes of ``kind`` by name (importing the project's built-in ones first)."""
-    _load_builtins()
-    return dict(_REGISTRY.get(kind, {}))
-
-
-@functools.cache
-def _load_builtins() -> None:
-    # Importing the packages runs their @register decorators.
-    import dgsdp.audio  # noqa: F401
-    import dgsdp.diffusion  # noqa: F401
-    import dgsdp.model  # noqa: F401
-    import dgsdp.style  # noqa: F401
-
-    register_external("optimizer", "adan_pytorch.Adan")
-    register_external("optimizer", "torch.optim.AdamW", "torch.optim.adamw.AdamW")
+    """The buildable classes of ``kind`` by name: the project's built-in ones (imported now) and the registered."""
+    table = {name: _builtin(kind, name) for name in BUILTINS.get(kind, {})}
+    return {**table, **_REGISTRY.get(kind, {})}
 
 
 def check_plain(value: Any, where: str, source: Source) -> None:
@@ -102,18 +123,19 @@ def check_no_targets(value: Any, where: str, source: Source) -> None:
 
 def resolve(kind: Kind, target: Any, where: str, source: Source) -> type:
     """The registered class named ``target``; from a user's config, its module is imported first if needed."""
-    table = registered(kind)
-    if isinstance(target, str) and target in table:
-        return table[target]
+    if isinstance(target, str):
+        found = _REGISTRY.get(kind, {}).get(target) or _builtin(kind, target)
+        if found is not None:
+            return found
     if source == "config" and isinstance(target, str) and "." in target:
         module = target.rpartition(".")[0]
         try:
             importlib.import_module(module)
         except ImportError as e:
             raise ConfigError(f"{where}._target_ = {target!r}: cannot import {module!r} ({e})") from e
-        table = registered(kind)
-        if target in table:
-            return table[target]
+        if target in _REGISTRY.get(kind, {}):
+            return _REGISTRY[kind][target]
+    table = {**BUILTINS.get(kind, {}), **_REGISTRY.get(kind, {})}
     allowed = ", ".join(sorted(n for n in table if n.count(".") <= 2)) or "none"
     if source == "checkpoint":
         raise CheckpointError(

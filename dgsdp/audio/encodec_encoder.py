@@ -22,7 +22,6 @@ import torch
 
 from dgsdp.audio.base import AudioEncoder, resample_frames
 from dgsdp.errors import ConfigError, WeightsError
-from dgsdp.registry import register
 from dgsdp.utils.device import resolve_device
 
 if TYPE_CHECKING:
@@ -31,7 +30,6 @@ if TYPE_CHECKING:
 DEFAULT_MODEL_ID = "facebook/encodec_24khz"
 
 
-@register("audio", "dgsdp.audio.EncodecEncoder")
 class EncodecEncoder(AudioEncoder):
     """Continuous Encodec encoder latent, ``(n_frames, hidden_size)`` at 30 FPS."""
 

@@ -42,7 +42,6 @@ from torch import nn
 
 from dgsdp.audio.base import AudioEncoder, fit_frames, resample_frames
 from dgsdp.errors import ConfigError, WeightsError
-from dgsdp.registry import register
 from dgsdp.utils.device import resolve_device
 
 JUKEBOX_SAMPLE_RATE = 44100
@@ -143,7 +142,6 @@ def _quiet() -> contextlib.AbstractContextManager:
     return contextlib.redirect_stdout(io.StringIO())
 
 
-@register("audio", "dgsdp.audio.JukeboxEncoder")
 class JukeboxEncoder(AudioEncoder):
     """Jukebox 5B prior activations of block ``layer``, ``(n_frames, 4800)`` at 30 FPS."""
 

@@ -16,7 +16,6 @@ from dgsdp.audio.base import AudioEncoder
 from dgsdp.audio.loudness import normalize_loudness
 from dgsdp.audio.tempo import tempo_from_music_id
 from dgsdp.errors import ConfigError
-from dgsdp.registry import register
 
 ENVELOPE_COLUMN = 0
 MFCC_COLUMNS = slice(1, 21)
@@ -52,7 +51,6 @@ def standardize_song(features: np.ndarray, mode: str) -> np.ndarray:
     return out
 
 
-@register("audio", "dgsdp.audio.LibrosaEncoder")
 class LibrosaEncoder(AudioEncoder):
     """35-d librosa features; ``start_bpm`` for the beat tracker comes from the AIST++ music id when known."""
 

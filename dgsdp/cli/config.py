@@ -7,6 +7,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
 from dgsdp.cli.schema import register_schemas
@@ -20,6 +21,38 @@ if not OmegaConf.has_resolver("dgsdp_precision"):  # conf/trainer/ddp.yaml: bf16
     from dgsdp.training.distributed import precision_for
 
     OmegaConf.register_new_resolver("dgsdp_precision", precision_for)
+
+
+GENERATE_CONFIG_FILE = CONFIG_DIR / "generate.yaml"
+# Name in Hydra's config store of conf/generate.yaml with the groups it uses (paths, hydra) merged in. Generate's
+# only search path is that store: the training groups of conf/ (style, audio, model, ...) stay out of it, so that
+# ``style=krump`` is a plain value here, not a group choice.
+GENERATE_CONFIG_NAME = "dgsdp_generate"
+
+
+@contextlib.contextmanager
+def generate_configs() -> Iterator[None]:
+    """While inside: conf/generate.yaml and every option of the groups it uses (paths, hydra, sampling) are in
+    Hydra's config store, generate's only search path (so that the training groups, style among them, stay out
+    of it and ``style=krump`` is a plain value). Removed afterwards, so that they do not shadow the same files
+    when the train or evaluate configs are composed in the same process."""
+    store = ConfigStore.instance()
+    node = OmegaConf.load(GENERATE_CONFIG_FILE)
+    added: list[tuple[str | None, str]] = []
+    for entry in node.get("defaults", []):
+        if isinstance(entry, str):  # _self_
+            continue
+        for group in entry:
+            for option in (CONFIG_DIR / group).glob("*.yaml"):
+                store.store(group=group, name=option.stem, node=OmegaConf.load(option))
+                added.append((group, f"{option.stem}.yaml"))
+    store.store(name=GENERATE_CONFIG_NAME, node=node)
+    added.append((None, f"{GENERATE_CONFIG_NAME}.yaml"))
+    try:
+        yield
+    finally:
+        for group, name in added:
+            (store.repo.get(group, {}) if group else store.repo).pop(name, None)
 
 
 _composed: list[Any] = [None]  # the HydraConfig that compose_config set last (not a running app's)
@@ -54,10 +87,8 @@ def compose_config(
     from hydra import compose, initialize, initialize_config_module
 
     if config_name == "generate":
-        from dgsdp.cli.generate import CONFIG_NAME, generate_configs
-
         with generate_configs(), initialize(version_base="1.3", config_path=None):
-            cfg = compose(CONFIG_NAME, overrides=list(overrides), return_hydra_config=True)
+            cfg = compose(GENERATE_CONFIG_NAME, overrides=list(overrides), return_hydra_config=True)
     else:
         with initialize_config_module(CONFIG_MODULE, version_base="1.3"):
             cfg = compose(config_name, overrides=list(overrides), return_hydra_config=True)

@@ -15,7 +15,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from dgsdp.cli.config import CONFIG_PATH, compose_config
-from dgsdp.cli.train import run_main
+from dgsdp.cli.runtime import run_main
 from dgsdp.errors import ConfigError
 from dgsdp.evaluation.protocols import ProtocolSpec
 from dgsdp.evaluation.results import log_results, write_results

@@ -7,21 +7,18 @@ reported at the end while the other songs are still written. The exit code is no
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import re
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import hydra
 import torch
-from hydra.core.config_store import ConfigStore
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from tqdm.auto import tqdm
 
-from dgsdp.cli.config import CONFIG_DIR, as_list
-from dgsdp.cli.train import run_main
+from dgsdp.cli.config import GENERATE_CONFIG_NAME, as_list, generate_configs
+from dgsdp.cli.runtime import run_main
 from dgsdp.editing import check_task, load_motion_file
 from dgsdp.errors import ConfigError, DgsdpError
 from dgsdp.export import check_formats
@@ -29,36 +26,6 @@ from dgsdp.generation.pipeline import DanceGenerator, EditSettings, StylePlan, f
 from dgsdp.sampling import SamplingSettings
 
 log = logging.getLogger(__name__)
-CONFIG_FILE = CONFIG_DIR / "generate.yaml"
-# Name in Hydra's config store of conf/generate.yaml with the groups it uses (paths, hydra) merged in. Generate's
-# only search path is that store: the training groups of conf/ (style, audio, model, ...) stay out of it, so that
-# ``style=krump`` is a plain value here, not a group choice.
-CONFIG_NAME = "dgsdp_generate"
-
-
-@contextlib.contextmanager
-def generate_configs() -> Iterator[None]:
-    """While inside: conf/generate.yaml and every option of the groups it uses (paths, hydra, sampling) are in
-    Hydra's config store, generate's only search path (so that the training groups, style among them, stay out
-    of it and ``style=krump`` is a plain value). Removed afterwards, so that they do not shadow the same files
-    when the train or evaluate configs are composed in the same process."""
-    store = ConfigStore.instance()
-    node = OmegaConf.load(CONFIG_FILE)
-    added: list[tuple[str | None, str]] = []
-    for entry in node.get("defaults", []):
-        if isinstance(entry, str):  # _self_
-            continue
-        for group in entry:
-            for option in (CONFIG_DIR / group).glob("*.yaml"):
-                store.store(group=group, name=option.stem, node=OmegaConf.load(option))
-                added.append((group, f"{option.stem}.yaml"))
-    store.store(name=CONFIG_NAME, node=node)
-    added.append((None, f"{CONFIG_NAME}.yaml"))
-    try:
-        yield
-    finally:
-        for group, name in added:
-            (store.repo.get(group, {}) if group else store.repo).pop(name, None)
 
 
 @dataclass
@@ -203,7 +170,7 @@ def print_report(report: GenerationReport) -> None:
             print(f"  {song}: {message}")
 
 
-@hydra.main(version_base="1.3", config_path=None, config_name=CONFIG_NAME)
+@hydra.main(version_base="1.3", config_path=None, config_name=GENERATE_CONFIG_NAME)
 def _main(cfg: DictConfig) -> None:
     report = run_main(generate, cfg)
     print_report(report)

@@ -14,12 +14,16 @@ from __future__ import annotations
 import logging
 import os
 import secrets
+import shutil
 import sys
 from pathlib import Path
 from typing import Any, TextIO
 
+from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
+
+from dgsdp.errors import CheckpointError, ConfigError, DgsdpError
 
 log = logging.getLogger(__name__)
 
@@ -125,3 +129,24 @@ def check_command_line(argv: list[str] | None = None, prog: str | None = None) -
             ) from None
         except Exception:  # noqa: BLE001 - leave anything else to Hydra's own handling
             continue
+
+
+def remove_unused_run_folder(folder: str | Path) -> None:
+    """Remove a run folder that holds nothing but Hydra's own records (the run stopped before any work)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return
+    own = {".hydra", f"{HydraConfig.get().job.name}.log"} if HydraConfig.initialized() else {".hydra"}
+    if {p.name for p in folder.iterdir()} <= own:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def run_main(task: Any, cfg: DictConfig) -> Any:
+    """Run an entry point's task with one clear message (and no traceback) for errors a user can meet."""
+    try:
+        return task(cfg)
+    except DgsdpError as e:
+        log.error("%s", e)
+        if isinstance(e, ConfigError | CheckpointError) and HydraConfig.initialized():
+            remove_unused_run_folder(HydraConfig.get().runtime.output_dir)
+        raise SystemExit(f"error: {e}") from None

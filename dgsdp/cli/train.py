@@ -8,7 +8,6 @@ model and optimiser. A problem ends the run with one message and no half-made ru
 from __future__ import annotations
 
 import logging
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +19,8 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from dgsdp.cli.config import CONFIG_PATH, as_list, check_options
-from dgsdp.errors import CheckpointError, ConfigError, DgsdpError
+from dgsdp.cli.runtime import run_main
+from dgsdp.errors import ConfigError
 from dgsdp.registry import build
 from dgsdp.training.distributed import is_writer, log_files_on_writer_only
 from dgsdp.training.module import DanceDiffusion, read_checkpoint, wandb_run_id
@@ -163,27 +163,6 @@ def train(cfg: DictConfig) -> dict[str, Any]:
 
         result["evaluation"] = evaluate_after_training(cfg, result["checkpoint"], spec.groups)
     return result
-
-
-def remove_unused_run_folder(folder: str | Path) -> None:
-    """Remove a run folder that holds nothing but Hydra's own records (the run stopped before any work)."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        return
-    own = {".hydra", f"{HydraConfig.get().job.name}.log"} if HydraConfig.initialized() else {".hydra"}
-    if {p.name for p in folder.iterdir()} <= own:
-        shutil.rmtree(folder, ignore_errors=True)
-
-
-def run_main(task: Any, cfg: DictConfig) -> Any:
-    """Run an entry point's task with one clear message (and no traceback) for errors a user can meet."""
-    try:
-        return task(cfg)
-    except DgsdpError as e:
-        log.error("%s", e)
-        if isinstance(e, ConfigError | CheckpointError) and HydraConfig.initialized():
-            remove_unused_run_folder(HydraConfig.get().runtime.output_dir)
-        raise SystemExit(f"error: {e}") from None
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="train")

@@ -11,8 +11,6 @@ import math
 import torch
 from torch import nn
 
-from dgsdp.registry import register
-
 
 def cosine_betas(num_steps: int, s: float = 0.008, max_beta: float = 0.999) -> torch.Tensor:
     """Cosine schedule (Nichol & Dhariwal): betas (num_steps,) float64, clipped at ``max_beta``."""
@@ -35,7 +33,6 @@ def x0_bound(clip_x0: bool | float) -> float | None:
     raise ValueError(f"clip_x0 must be true, false or a positive bound, got {clip_x0!r}")
 
 
-@register("diffusion", "dgsdp.diffusion.GaussianDiffusion")
 class GaussianDiffusion(nn.Module):
     """Noise schedule and update rules. Buffers are float32 copies of float64 computations."""
 

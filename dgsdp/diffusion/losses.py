@@ -19,10 +19,8 @@ import torch.nn.functional as F
 
 from dgsdp.motion import FOOT_JOINTS, MinMaxNormalizer, unpack_pose
 from dgsdp.motion.representation import CONTACT_CHANNELS
-from dgsdp.registry import register
 
 
-@register("loss", "dgsdp.diffusion.LossWeights")
 @dataclass
 class LossWeights:
     simple: float = 0.636

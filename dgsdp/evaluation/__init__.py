@@ -7,7 +7,8 @@ from dgsdp.evaluation.protocols import GROUND_TRUTH, METRICS, ProtocolSpec, Vari
 from dgsdp.evaluation.results import read_results, results_markdown, write_results
 from dgsdp.evaluation.runner import Evaluator
 from dgsdp.evaluation.sampling import clip_requests, sample_clips
-from dgsdp.evaluation.scoring import Scorer, WarningLog, summarise
+from dgsdp.evaluation.scoring import Scorer, summarise
+from dgsdp.evaluation.warning_log import WarningLog
 
 __all__ = [
     "GROUND_TRUTH", "METRICS", "Clip", "ClipSource", "Evaluator", "ProtocolSpec", "Scorer", "Variant", "WarningLog",

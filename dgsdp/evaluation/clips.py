@@ -14,7 +14,7 @@ from dgsdp.data.datamodule import load_sequences, window_starts
 from dgsdp.errors import DataError
 from dgsdp.evaluation.features import MODEL_FPS
 from dgsdp.evaluation.protocols import ProtocolSpec
-from dgsdp.evaluation.scoring import WarningLog
+from dgsdp.evaluation.warning_log import WarningLog
 from dgsdp.metrics import music_beats_from_features
 from dgsdp.resources import CONFIG_DIR
 

@@ -29,7 +29,8 @@ from dgsdp.evaluation.clips import ALL_SPLITS, ClipSource
 from dgsdp.evaluation.features import motion_to_joints
 from dgsdp.evaluation.protocols import METRICS, ProtocolSpec
 from dgsdp.evaluation.sampling import sample_clips
-from dgsdp.evaluation.scoring import Scorer, WarningLog, summarise
+from dgsdp.evaluation.scoring import Scorer, summarise
+from dgsdp.evaluation.warning_log import WarningLog
 from dgsdp.generation.pipeline import DanceGenerator
 from dgsdp.sampling import SamplingSettings
 

@@ -3,10 +3,7 @@
 from __future__ import annotations
 
 import logging
-import math
-import warnings
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -14,10 +11,9 @@ import numpy as np
 from dgsdp.data.datamodule import window_starts
 from dgsdp.evaluation.features import FEATURE_FPS, MODEL_FPS, beats_to_feature_fps, feature_joints, motion_to_joints
 from dgsdp.evaluation.protocols import ProtocolSpec
+from dgsdp.evaluation.warning_log import WarningLog
 from dgsdp.metrics import (
     GenreClassifier,
-    MetricError,
-    MetricWarning,
     beat_alignment,
     diversity,
     fid,
@@ -31,38 +27,6 @@ if TYPE_CHECKING:
     from dgsdp.evaluation.clips import Clip
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class WarningLog:
-    """Messages of metrics that fell back to a defined value, per row (deduplicated)."""
-
-    items: list[dict[str, str]] = field(default_factory=list)
-
-    def add(self, row: str, metric: str, message: str) -> None:
-        entry = {"row": row, "metric": metric, "message": message}
-        if entry not in self.items:
-            self.items.append(entry)
-            log.warning("%s / %s: %s", row, metric, message)
-
-    def guard(self, row: str, metric: str, fn: Callable[[], float]) -> float | None:
-        """``fn()``, or None when it raises MetricError; MetricWarnings it raises are recorded."""
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", MetricWarning)
-            try:
-                value: float | None = float(fn())
-            except MetricError as e:
-                self.add(row, metric, f"not computable ({e}); reported as n/a")
-                value = None
-        for w in caught:
-            if issubclass(w.category, MetricWarning):
-                self.add(row, metric, str(w.message))
-            else:
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-        if value is not None and not math.isfinite(value):
-            self.add(row, metric, f"non-finite value {value}; reported as n/a")
-            value = None
-        return value
 
 
 def summarise(values: Sequence[float | None]) -> dict[str, Any]:

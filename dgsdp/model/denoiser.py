@@ -41,7 +41,6 @@ from torch import nn
 from torch.utils.checkpoint import checkpoint
 
 from dgsdp.model.layers import Attention, EncoderLayer, FeedForward, FiLM, sinusoidal_embedding
-from dgsdp.registry import register
 from dgsdp.style.injection import StyleModulation
 
 INJECTIONS = ("modulation", "concat")
@@ -124,7 +123,6 @@ class DecoderLayer(nn.Module):
         return x + self.film3(self.drop(self.ff(self.norm3(x))), t_cond)
 
 
-@register("model", "dgsdp.model.DanceDenoiser")
 class DanceDenoiser(nn.Module):
     """Predicts x0 from (x_t, t, music, style). All sizes come from config (``conf/model``)."""
 

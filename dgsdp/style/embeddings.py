@@ -17,7 +17,6 @@ import torch
 import yaml
 
 from dgsdp.errors import ConfigError, DataError
-from dgsdp.registry import register
 from dgsdp.resources import STYLE_PROMPTS_FILE
 from dgsdp.style.text_encoders import TextEncoder, plain_config
 from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab, split_free_text
@@ -139,7 +138,6 @@ def load_prompts(path: str | os.PathLike, vocab: GenreVocab = AISTPP_GENRES) -> 
     return per_genre
 
 
-@register("style", "dgsdp.style.StyleEmbedder")
 class StyleEmbedder:
     """Builds style vectors of one kind for a genre vocabulary.
 

@@ -18,7 +18,6 @@ from typing import Any
 import torch
 
 from dgsdp.errors import ConfigError, WeightsError
-from dgsdp.registry import register
 
 CLIP_WEIGHTS_HELP = (
     "To get them, run once on a machine with internet access: "
@@ -76,7 +75,6 @@ def _package_version(dist: str) -> str:
         return "unknown"
 
 
-@register("text_encoder", "dgsdp.style.MiniLMTextEncoder")
 class MiniLMTextEncoder(TextEncoder):
     """all-MiniLM-L6-v2 sentence embeddings (384-d): token embeddings mean-pooled over the attention mask,
     then L2-normalised, as sentence-transformers computes them for this model.
@@ -167,7 +165,6 @@ class MiniLMTextEncoder(TextEncoder):
         return torch.nn.functional.normalize(pooled, p=2, dim=-1)
 
 
-@register("text_encoder", "dgsdp.style.ClipTextEncoder")
 class ClipTextEncoder(TextEncoder):
     """open_clip text tower (``encode_text``; ViT-B/32: 77 tokens, 512-d), as used by the official DGSDP code.
 

@@ -282,7 +282,7 @@ class RunSpec:
         encoder or style embedder configs (for benchmarks and tests that build random-init models)."""
         from omegaconf import OmegaConf
 
-        from dgsdp.cli.config import CONFIG_DIR
+        from dgsdp.resources import CONFIG_DIR
 
         def load(group: str, option: str) -> dict[str, Any]:
             node = OmegaConf.to_container(OmegaConf.load(CONFIG_DIR / group / f"{option}.yaml"), resolve=True)
