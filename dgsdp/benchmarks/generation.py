@@ -17,8 +17,8 @@ import torch
 
 from dgsdp.generation.longform import sample_long
 from dgsdp.sampling import Guidance
-from dgsdp.training.module import DanceDiffusion
-from dgsdp.training.spec import RunSpec
+from dgsdp.trained import TrainedModel
+from dgsdp.trained.spec import RunSpec
 
 # Music and style sizes of each benchmarked model: small runs on the 35-d librosa features with one-hot
 # genres; paper is EDGE/DGSDP's size with Jukebox features and CLIP-sized style vectors.
@@ -40,11 +40,11 @@ class Timing:
         return self.compute_seconds / self.dance_seconds
 
 
-def build_model(size: str) -> DanceDiffusion:
+def build_model(size: str) -> TrainedModel:
     """A random-init model of conf/model/<size>.yaml with the music/style sizes of :data:`SIZES`."""
     dims = SIZES[size]
     spec = RunSpec.from_groups(model=size, audio_dim=dims["audio_dim"], style_dim=dims["style_dim"])
-    return DanceDiffusion(spec).eval()
+    return TrainedModel(spec).eval()
 
 
 def time_generation(size: str, device: str, *, seconds: float, steps: int, bf16: bool, repeats: int = 1) -> Timing:

@@ -61,9 +61,9 @@ def time_setting(
     """Seconds of sampling compute per second of dance for one batch of ``clips`` clips (guidance w = 2)."""
     from dgsdp.generation import DanceGenerator, DanceRequest
     from dgsdp.sampling import GuidanceSettings, SamplingSettings
-    from dgsdp.training.module import load_checkpoint
+    from dgsdp.trained import load_model
 
-    model = load_checkpoint(checkpoint).eval()
+    model = load_model(checkpoint).eval()
     generator = DanceGenerator(model, cache_dir=tempfile.mkdtemp(prefix="dgsdp-bench-"))
     n = int(round(seconds * 30))
     gen = torch.Generator().manual_seed(0)

@@ -20,8 +20,8 @@ import time
 
 import torch
 
+from dgsdp.trained.spec import RunSpec
 from dgsdp.training.module import DanceDiffusion
-from dgsdp.training.spec import RunSpec
 
 # Dense (no sparsity) peak tensor TFLOP/s from NVIDIA's spec sheets: (bf16, tf32, fp32 without tensor cores).
 # Matched against torch.cuda.get_device_name() in this order (more specific names first).

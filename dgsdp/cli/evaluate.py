@@ -22,8 +22,9 @@ from dgsdp.evaluation.results import log_results, write_results
 from dgsdp.evaluation.runner import Evaluator
 from dgsdp.generation.pipeline import DanceGenerator
 from dgsdp.sampling import SamplingSettings
-from dgsdp.training.module import load_checkpoint, read_checkpoint, wandb_run_id
-from dgsdp.training.spec import RunSpec
+from dgsdp.trained import load_model, read_checkpoint
+from dgsdp.trained.spec import RunSpec
+from dgsdp.training.module import wandb_run_id
 from dgsdp.utils.device import resolve_device
 
 log = logging.getLogger(__name__)
@@ -89,7 +90,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
         raise ConfigError("give checkpoint=<path of a .ckpt written by train.py>")
     spec = ProtocolSpec.from_config(OmegaConf.to_container(cfg.protocol, resolve=True))
     sampling = SamplingSettings.from_config(cfg.sampling)
-    model = load_checkpoint(str(cfg.checkpoint))
+    model = load_model(str(cfg.checkpoint))
     root, cache = _data_location(cfg, model.spec)
     generator = DanceGenerator(model, cache_dir=cache, device=resolve_device(str(cfg.device)))
     evaluator = Evaluator(

@@ -22,10 +22,11 @@ from dgsdp.cli.config import CONFIG_PATH, as_list, check_options
 from dgsdp.cli.runtime import run_main
 from dgsdp.errors import ConfigError
 from dgsdp.registry import build
+from dgsdp.trained import read_checkpoint
+from dgsdp.trained.spec import RunSpec
 from dgsdp.training.distributed import is_writer, log_files_on_writer_only
-from dgsdp.training.module import DanceDiffusion, read_checkpoint, wandb_run_id
+from dgsdp.training.module import DanceDiffusion, wandb_run_id
 from dgsdp.training.resume import check_resume_has_work
-from dgsdp.training.spec import RunSpec
 from dgsdp.utils.io import atomic_write_text
 
 log = logging.getLogger(__name__)

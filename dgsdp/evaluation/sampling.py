@@ -34,7 +34,7 @@ def clip_requests(
     requests = []
     for clip in clips:
         s = clip_seed(seed, trial, clip.index)
-        genre = torch.tensor([clip.seq.genre_index], device=model.device)
+        genre = torch.tensor([clip.seq.genre_index], device=generator.device)
         style = model.style_for(genre, random=False)
         music = clip.music()
         if per_window and music is not None and clip.music_file is not None:

@@ -28,7 +28,7 @@ from dgsdp.generation.longform import DanceRequest, WindowLayout, sample_items
 from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styles
 from dgsdp.motion import POSE_DIM, FloorCleanup, clean_motion, pose_to_joints, unpack_pose
 from dgsdp.sampling import SamplingSettings
-from dgsdp.training.module import DanceDiffusion, load_checkpoint
+from dgsdp.trained import TrainedModel, load_model
 from dgsdp.utils.device import resolve_device
 from dgsdp.utils.io import atomic_path
 
@@ -87,7 +87,7 @@ class DanceGenerator:
 
     def __init__(
         self,
-        model: DanceDiffusion,
+        model: TrainedModel,
         *,
         cache_dir: str | os.PathLike,
         device: torch.device | str = "cpu",
@@ -117,7 +117,7 @@ class DanceGenerator:
         max_song_seconds: float | None = None,
     ) -> DanceGenerator:
         return cls(
-            load_checkpoint(str(path)),
+            load_model(str(path)),
             cache_dir=cache_dir,
             device=resolve_device(device),
             max_song_seconds=max_song_seconds,

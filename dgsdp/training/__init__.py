@@ -1,6 +1,5 @@
-"""Training: the run spec, the LightningModule (denoiser, diffusion, loss, optimiser, EMA) and callbacks."""
+"""Training: the LightningModule (a trained model plus loss, optimiser and EMA updates), checkpoints and callbacks."""
 
-from dgsdp.training.module import DanceDiffusion, load_checkpoint, read_checkpoint
-from dgsdp.training.spec import Conditioning, RunSpec
+from dgsdp.training.module import DanceDiffusion
 
-__all__ = ["Conditioning", "DanceDiffusion", "RunSpec", "load_checkpoint", "read_checkpoint"]
+__all__ = ["DanceDiffusion"]

@@ -1,41 +1,18 @@
-"""The LightningModule: denoiser + diffusion + loss + optimiser + EMA, with style and normaliser state.
-
-Everything the model needs at generation time is in its state dict as plain tensors (normaliser statistics,
-style bank) and in its :class:`~dgsdp.training.spec.RunSpec`, stored as plain data in ``hyper_parameters``.
-Checkpoints therefore load with ``torch.load(..., weights_only=True)`` and without this package's classes, and
-their configs are data: parts are built only from the project's registered classes (:mod:`dgsdp.registry`).
-"""
+"""The LightningModule: a :class:`~dgsdp.trained.TrainedModel` (denoiser, EMA, diffusion, normaliser, floor, style
+bank) with the loss, the optimiser, the EMA update and the checkpoint record added for training."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
 import lightning as L
 import torch
-from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from dgsdp.diffusion import dance_loss
-from dgsdp.errors import CheckpointError, ConfigError
-from dgsdp.motion import POSE_DIM, MinMaxNormalizer
 from dgsdp.registry import Source
-from dgsdp.sampling import Sampler
-from dgsdp.style.embeddings import StyleBank
-from dgsdp.training.spec import RunSpec
-
-CHECKPOINT_FORMAT = 2
-MAX_FLOOR_M = 10.0  # a stored floor height further from z = 0 is refused as damaged data
-
-
-def plain(obj: Any) -> Any:
-    """Recursively turn mappings/sequences (e.g. Lightning's AttributeDict) into builtin dicts and lists."""
-    if isinstance(obj, Mapping):
-        return {str(k): plain(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [plain(v) for v in obj]
-    return obj
+from dgsdp.trained.model import CHECKPOINT_FORMAT, TrainedModel, plain
+from dgsdp.trained.spec import RunSpec
 
 
 def step_seed(seed: int, step: int, rank: int = 0, world_size: int = 1) -> int:
@@ -45,60 +22,13 @@ def step_seed(seed: int, step: int, rank: int = 0, world_size: int = 1) -> int:
     return seed * 1_000_003 + step * world_size + rank
 
 
-class DanceDiffusion(L.LightningModule):
-    """Trains the denoiser on normalised 151-d windows; samples with the EMA weights.
-
-    spec: the run's :class:`RunSpec` (or its plain-dict form, as stored in checkpoints); ``source`` says whether
-    it came from the user's config or from a checkpoint (then only registered classes are built).
-    """
+class DanceDiffusion(TrainedModel, L.LightningModule):
+    """Trains the denoiser on normalised 151-d windows; samples with the EMA weights (see :class:`TrainedModel`)."""
 
     def __init__(self, spec: RunSpec | Mapping[str, Any], source: Source = "config") -> None:
-        super().__init__()
-        spec = spec if isinstance(spec, RunSpec) else RunSpec.from_dict(spec, "hyper_parameters")
-        self.spec = spec
-        self.save_hyperparameters(plain(spec.to_dict()))
-        cond = spec.conditioning
-        self.style_dim = cond.style_dim
-        self.denoiser = spec.build_denoiser(source)
-        self.diffusion = spec.build_diffusion(source)
-        self.loss_weights = spec.build_loss(source)
-        self.normalizer = MinMaxNormalizer(POSE_DIM)
-        # The training data's floor (z-up metres, dgsdp.motion.floor); checkpoints written before it existed load 0.0.
-        self.register_buffer("floor_height", torch.tensor(0.0))
-        self.register_load_state_dict_pre_hook(_default_floor_height)
-        self.register_buffer("style_vectors", torch.zeros(cond.style_bank_size, self.style_dim))
-        self.register_buffer("style_genre_index", torch.zeros(cond.style_bank_size, dtype=torch.long))
-        self.n_genres = cond.n_genres
-        self.ema = AveragedModel(self.denoiser, multi_avg_fn=get_ema_multi_avg_fn(spec.ema_decay), use_buffers=True)
-        self.ema.requires_grad_(False)
-
-    # --- state -------------------------------------------------------------------------------------------
-    def set_style_bank(self, bank: StyleBank | None) -> None:
-        if bank is None:
-            return
-        if bank.vectors.shape != self.style_vectors.shape:
-            raise ConfigError(
-                f"style bank {tuple(bank.vectors.shape)} does not match {tuple(self.style_vectors.shape)}"
-            )
-        self.style_vectors.copy_(bank.vectors)
-        self.style_genre_index.copy_(bank.genre_index)
-
-    def set_floor_height(self, metres: float) -> None:
-        """Store the floor height of the training data (z-up metres, see dgsdp.motion.floor)."""
-        self.floor_height.fill_(check_floor_height(metres, "the floor height"))
-
-    @property
-    def style_bank(self) -> StyleBank | None:
-        """The style bank of the ``style_vectors``/``style_genre_index`` buffers, built once and rebuilt only when
-        those buffers change (new values, device or dtype), so training steps never rebuild or validate it."""
-        if not self.style_dim or len(self.style_vectors) == 0:
-            return None
-        key = tuple((b.data_ptr(), b._version, b.device, b.dtype) for b in (self.style_vectors, self.style_genre_index))
-        cached = getattr(self, "_style_bank_cache", None)
-        if cached is None or cached[0] != key:
-            cached = (key, StyleBank(self.style_vectors, self.style_genre_index, self.n_genres))
-            self._style_bank_cache = cached
-        return cached[1]
+        super().__init__(spec, source)
+        self.save_hyperparameters(plain(self.spec.to_dict()))
+        self.loss_weights = self.spec.build_loss(source)
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint["hyper_parameters"] = plain(dict(self.hparams))
@@ -109,15 +39,6 @@ class DanceDiffusion(L.LightningModule):
             if isinstance(version, str | int):
                 run_ids[type(logger).__name__] = str(version)
         checkpoint["logger_run_ids"] = run_ids
-
-    # --- conditioning ------------------------------------------------------------------------------------
-    def style_for(self, genre: torch.Tensor, random: bool, check: bool = True) -> torch.Tensor | None:
-        """Style vectors (B, ds) for genre indices (B,): a random bank row of each genre, or the genre's mean.
-        ``check=False`` skips the range checks (they read values back from the device)."""
-        bank = self.style_bank
-        if bank is None:
-            return None
-        return bank.sample(genre, check=check) if random else bank.mean_for(genre, check=check)
 
     def _loss(
         self, denoiser: torch.nn.Module, batch: dict[str, Any], train: bool, generator=None
@@ -173,49 +94,6 @@ class DanceDiffusion(L.LightningModule):
     def configure_optimizers(self) -> torch.optim.Optimizer:
         return self.spec.build_optimizer(self.denoiser.parameters())
 
-    # --- sampling ----------------------------------------------------------------------------------------
-    def sampler(self, use_ema: bool = True) -> Sampler:
-        denoiser = self.ema.module if use_ema else self.denoiser
-        return Sampler(denoiser, self.diffusion, style_guidance=self.spec.conditioning.style_guidance)
-
-
-def check_floor_height(value: Any, where: str) -> float:
-    """A floor height as a float, or a ConfigError: a finite number within MAX_FLOOR_M of zero."""
-    if torch.is_tensor(value):
-        if value.numel() != 1 or not value.is_floating_point():
-            raise ConfigError(f"{where} must be one number, got a {value.dtype} tensor of shape {tuple(value.shape)}")
-        value = value.item()
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ConfigError(f"{where} must be a finite number of metres, got {value!r}")
-    if abs(value) > MAX_FLOOR_M:
-        raise ConfigError(f"{where} is {value} m; a floor more than {MAX_FLOOR_M:g} m from z = 0 is not a dance floor")
-    return float(value)
-
-
-def _default_floor_height(module: torch.nn.Module, state: dict[str, Any], prefix: str, *args: Any) -> None:
-    """Checkpoints written before the floor height was stored load with the model's current one (0.0 when new)."""
-    key = prefix + "floor_height"
-    if key not in state and isinstance(module, DanceDiffusion):
-        state[key] = module.floor_height.detach().clone()
-
-
-def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
-    """A checkpoint file as plain data (tensors and builtins only), or one clear CheckpointError."""
-    p = Path(path).expanduser()
-    if not p.is_file():
-        raise CheckpointError(f"checkpoint {p} does not exist; train one with 'python train.py' or check the path")
-    try:
-        ckpt = torch.load(p, map_location=map_location, weights_only=True)
-    except Exception as e:  # noqa: BLE001 - any failure here means the file is not a usable checkpoint
-        first = str(e).strip().splitlines()[0][:300] if str(e).strip() else ""
-        raise CheckpointError(
-            f"cannot read checkpoint {p}: {type(e).__name__}: {first}. It is damaged, not a PyTorch checkpoint, "
-            "or holds objects other than tensors and plain values (which are never loaded)"
-        ) from e
-    if not isinstance(ckpt, dict) or "hyper_parameters" not in ckpt or "state_dict" not in ckpt:
-        raise CheckpointError(f"{p} is not a dgsdp checkpoint (no hyper_parameters/state_dict)")
-    return ckpt
-
 
 def wandb_run_id(checkpoint: Mapping[str, Any]) -> str | None:
     """The wandb run id a checkpoint's run logged to (to continue that run), if it is a plain id."""
@@ -225,36 +103,3 @@ def wandb_run_id(checkpoint: Mapping[str, Any]) -> str | None:
     if isinstance(run_id, str) and re.fullmatch(r"[A-Za-z0-9_-]{1,64}", run_id):
         return run_id
     return None  # absent, or not an id (the file is data: never used as a path or an override)
-
-
-def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> DanceDiffusion:
-    """Rebuild a trained model from a checkpoint (plain tensors + its run spec as data), EMA weights included."""
-    ckpt = read_checkpoint(path, map_location)
-    source = str(Path(path).expanduser())
-    spec = RunSpec.from_checkpoint(ckpt, source)
-    model = DanceDiffusion(spec, source="checkpoint")
-    state = ckpt["state_dict"]
-    if not isinstance(state, Mapping) or not all(torch.is_tensor(v) for v in state.values()):
-        raise CheckpointError(f"checkpoint {source}: state_dict must map names to tensors")
-    if "floor_height" in state:
-        try:
-            check_floor_height(state["floor_height"], "its floor_height")
-        except ConfigError as e:
-            raise CheckpointError(f"checkpoint {source}: {e}; the file is damaged or not a dgsdp checkpoint") from e
-    try:
-        model.load_state_dict(state)
-    except RuntimeError as e:
-        raise CheckpointError(f"checkpoint {source} does not match its own configuration: {e}") from e
-    expected = model.state_dict()  # after loading: a shape mismatch is reported first, by load_state_dict
-    for name, value in state.items():
-        want = expected.get(name)
-        if (
-            want is not None
-            and value.dtype != want.dtype
-            and not (value.is_floating_point() and want.is_floating_point())
-        ):
-            raise CheckpointError(
-                f"checkpoint {source}: {name} is {value.dtype}, the model needs {want.dtype}; the file is damaged or "
-                "not a dgsdp checkpoint"
-            )
-    return model.eval()

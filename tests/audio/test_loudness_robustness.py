@@ -115,7 +115,7 @@ def test_settings_change_the_cache_key_and_are_checked():
 def test_checkpoints_trained_before_normalisation_keep_their_features():
     import dataclasses
 
-    from dgsdp.training import RunSpec
+    from dgsdp.trained import RunSpec
 
     spec = RunSpec.from_groups(
         model="small", audio_dim=35, style_dim=10, style_kind="onehot", style_bank_size=10, n_genres=10,

@@ -39,13 +39,13 @@ from dgsdp.metrics import (
 )
 from dgsdp.motion import pose_to_joints
 from dgsdp.sampling import SamplingSettings
-from dgsdp.training import load_checkpoint
+from dgsdp.trained import load_model
 
 METRIC_NAMES = ["BeatAlign", "PFC", "FID_k", "FID_g", "Div_k", "Div_g", "StyleAcc"]
 
 
 def evaluator(run, protocol: dict) -> Evaluator:
-    generator = DanceGenerator(load_checkpoint(run["checkpoint"]), cache_dir=run["cache"])
+    generator = DanceGenerator(load_model(run["checkpoint"]), cache_dir=run["cache"])
     spec = ProtocolSpec.from_config(protocol)
     return Evaluator(generator, spec, data_root=run["root"], cache_dir=run["cache"], progress=False)
 

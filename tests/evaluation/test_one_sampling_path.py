@@ -11,11 +11,11 @@ from dgsdp.evaluation import Evaluator, ProtocolSpec, Variant, clip_requests, cl
 from dgsdp.generation import DanceGenerator
 from dgsdp.motion import clean_motion
 from dgsdp.sampling import GuidanceSettings, SamplingSettings
-from dgsdp.training import load_checkpoint
+from dgsdp.trained import load_model
 
 
 def test_evaluate_and_generate_make_the_same_dance(trained_run, tmp_path):
-    generator = DanceGenerator(load_checkpoint(trained_run["checkpoint"]), cache_dir=trained_run["cache"])
+    generator = DanceGenerator(load_model(trained_run["checkpoint"]), cache_dir=trained_run["cache"])
     spec = ProtocolSpec.from_config({"name": "t", "lengths_seconds": [5.0], "stride_seconds": 2.5})
     ev = Evaluator(generator, spec, data_root=trained_run["root"], cache_dir=trained_run["cache"], progress=False)
     clips = ev.source.clips(ev.source.load_split("test"), 5.0)

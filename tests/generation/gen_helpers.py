@@ -6,7 +6,8 @@ import torch
 from motion_helpers import random_motion  # noqa: F401 - used by the generation tests
 
 from dgsdp.style import StyleBank
-from dgsdp.training import DanceDiffusion, RunSpec
+from dgsdp.trained import RunSpec
+from dgsdp.training import DanceDiffusion
 
 AUDIO_DIM = 35
 STYLE_DIM = 10

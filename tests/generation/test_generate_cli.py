@@ -124,9 +124,9 @@ def test_cleanup_is_on_by_default_and_switches_off(tmp_path, checkpoint, songs):
     from dgsdp.audio import FeatureCache
     from dgsdp.generation.beatsync import song_beats, sync_to_beats
     from dgsdp.motion import clean_motion, pose_to_joints
-    from dgsdp.training import load_checkpoint
+    from dgsdp.trained import load_model
 
-    floor = float(load_checkpoint(checkpoint).floor_height)
+    floor = float(load_model(checkpoint).floor_height)
     finished = np.load(_first_motion(tmp_path, checkpoint, songs))
     raw_cfg = gen_config(tmp_path / "raw", checkpoint, songs["good"], "formats=[npy]", "cleanup=false")
     raw = torch.from_numpy(np.load(generate(raw_cfg).written[str(songs["good"])][0]))

@@ -12,8 +12,8 @@ from dgsdp.generation import stitch_windows
 from dgsdp.generation.longform import DanceRequest, sample_items
 from dgsdp.motion import matrix_to_6d, sixd_to_matrix
 from dgsdp.sampling import SamplingSettings
+from dgsdp.trained.spec import RunSpec
 from dgsdp.training.module import DanceDiffusion
-from dgsdp.training.spec import RunSpec
 
 WINDOW, HALF, AUDIO = 20, 10, 7
 

@@ -20,7 +20,7 @@ from gen_helpers import tiny_model, tiny_spec  # noqa: E402
 
 from dgsdp.audio.jukebox_encoder import _load_checkpoint_state  # noqa: E402
 from dgsdp.errors import DgsdpError, WeightsError  # noqa: E402
-from dgsdp.training.module import load_checkpoint  # noqa: E402
+from dgsdp.trained import load_model  # noqa: E402
 
 
 @functools.lru_cache(maxsize=1)
@@ -40,7 +40,7 @@ def save_ckpt(path: Path, hparams: dict | None = None, state: dict | None = None
 
 
 def test_a_valid_tiny_checkpoint_loads(tmp_path):
-    model = load_checkpoint(str(save_ckpt(tmp_path / "ok.ckpt")))
+    model = load_model(str(save_ckpt(tmp_path / "ok.ckpt")))
     assert model.denoiser.seq_len == 150
 
 
@@ -50,7 +50,7 @@ def test_truncated_checkpoint(tmp_path, keep):
     path = tmp_path / "cut.ckpt"
     path.write_bytes(blob[: keep if isinstance(keep, int) else int(len(blob) * keep)])
     with pytest.raises(DgsdpError) as exc:
-        load_checkpoint(str(path))
+        load_model(str(path))
     refused(exc, str(path))
 
 
@@ -67,7 +67,7 @@ def test_pickle_that_is_not_a_zip(tmp_path, marker):
     path = tmp_path / "evil.ckpt"
     path.write_bytes(pickle.dumps({"hyper_parameters": _Gadget(os.system, shell_touch(marker)), "state_dict": {}}))
     with pytest.raises(DgsdpError) as exc:
-        load_checkpoint(str(path))
+        load_model(str(path))
     refused(exc, str(path))
 
 
@@ -75,7 +75,7 @@ def test_torch_saved_object_with_payload(tmp_path, marker):
     path = tmp_path / "evil.ckpt"
     torch.save({"hyper_parameters": _Gadget(os.system, shell_touch(marker)), "state_dict": {}}, path)
     with pytest.raises(DgsdpError) as exc:
-        load_checkpoint(str(path))
+        load_model(str(path))
     refused(exc, str(path))
 
 
@@ -89,7 +89,7 @@ def test_wrong_keys(tmp_path, content, fragment):
     path = tmp_path / "keys.ckpt"
     torch.save(content, path)
     with pytest.raises(DgsdpError) as exc:
-        load_checkpoint(str(path))
+        load_model(str(path))
     refused(exc, str(path), fragment)
 
 
@@ -97,7 +97,7 @@ def test_wrong_shapes(tmp_path):
     state = {k: (torch.zeros(v.shape[0] + 1, *v.shape[1:]) if v.ndim else v) for k, v in _model().state_dict().items()}
     path = save_ckpt(tmp_path / "shapes.ckpt", state=state)
     with pytest.raises(DgsdpError) as exc:
-        load_checkpoint(str(path))
+        load_model(str(path))
     refused(exc, str(path), "size mismatch")
 
 
@@ -106,7 +106,7 @@ def test_wrong_dtypes(tmp_path):
     state = {k: (v.to(torch.complex64) if v.is_floating_point() else v) for k, v in _model().state_dict().items()}
     path = save_ckpt(tmp_path / "dtypes.ckpt", state=state)
     with pytest.raises(DgsdpError) as exc:
-        load_checkpoint(str(path))
+        load_model(str(path))
     refused(exc, str(path))
 
 
@@ -122,7 +122,7 @@ def test_wrong_hyper_parameters(tmp_path, broken):
         hparams[section] = None if value == "null" else []
     path = save_ckpt(tmp_path / "hp.ckpt", hparams=hparams)
     with pytest.raises(DgsdpError) as exc:
-        load_checkpoint(str(path))
+        load_model(str(path))
     refused(exc, str(path))
 
 

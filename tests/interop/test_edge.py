@@ -16,7 +16,7 @@ from generation.gen_helpers import make_tiny_dataset, write_click_song
 from dgsdp.errors import CheckpointError
 from dgsdp.interop.edge import UnsafeCheckpointError, edge_architecture, import_edge, read_edge_checkpoint, to_dgsdp
 from dgsdp.interop.edge.__main__ import main
-from dgsdp.training.module import load_checkpoint
+from dgsdp.trained import load_model
 
 SIZES = {"d": 32, "layers": 2, "ff": 64}
 
@@ -75,7 +75,7 @@ def test_weights_land_in_the_matching_parameters(edge35):
 
 def test_import_writes_an_ordinary_checkpoint(edge35, imported35):
     raw = torch.load(imported35, weights_only=True)  # plain tensors and data only
-    model = load_checkpoint(imported35)
+    model = load_model(imported35)
     spec = model.spec
     assert spec.groups["experiment"] == "edge" and spec.conditioning.audio_dim == 35
     assert spec.model["rotary_placement"] == "input" and spec.model["null_music"] == "output"
@@ -100,7 +100,7 @@ def test_cli_imports_raw_weights_and_a_given_floor(edge35, tmp_path, capsys):
     out = tmp_path / "raw.ckpt"
     assert main(["import", str(edge35[0]), str(out), "--weights", "model", "--floor-height", "0.05"]) == 0
     assert "wrote" in capsys.readouterr().out
-    model = load_checkpoint(out)
+    model = load_model(out)
     torch.testing.assert_close(model.ema.module.output_proj.bias, edge35[1]["final_layer.bias"] + 1)
     assert float(model.floor_height) == pytest.approx(0.05)
 
@@ -108,7 +108,7 @@ def test_cli_imports_raw_weights_and_a_given_floor(edge35, tmp_path, capsys):
 def test_jukebox_feature_checkpoints_import_with_the_jukebox_encoder(tmp_path):
     src = tmp_path / "juke.pt"
     write_edge_checkpoint(src, 4800, prefix=True, **SIZES)
-    model = load_checkpoint(import_edge(src, tmp_path / "juke.ckpt", floor_height=0.0))
+    model = load_model(import_edge(src, tmp_path / "juke.ckpt", floor_height=0.0))
     assert model.spec.conditioning.audio_dim == 4800 and model.spec.audio["_target_"] == "dgsdp.audio.JukeboxEncoder"
     assert model.spec.audio["layer"] == 66
 

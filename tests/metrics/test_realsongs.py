@@ -266,9 +266,9 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     step = np.linalg.norm(joints[1:] - joints[:-1], axis=-1) * 30
     assert long["figures"]["mean_speed_m_s"] == pytest.approx(step.mean(), rel=1e-5)
     # against the run's stored floor (the tiny dataset's measured floor height)
-    from dgsdp.training.module import load_checkpoint
+    from dgsdp.trained import load_model
 
-    floor = float(load_checkpoint(checkpoint).floor_height)
+    floor = float(load_model(checkpoint).floor_height)
     assert data["floor_m"] == pytest.approx(floor)
     depth = floor - joints[..., 2].min()
     assert long["figures"]["penetration_cm"] == pytest.approx(max(0.0, 100 * depth), rel=1e-5, abs=1e-6)

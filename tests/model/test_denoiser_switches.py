@@ -11,8 +11,8 @@ from dgsdp.cli.config import compose_config
 from dgsdp.cli.train import audio_encoder_from_config, style_embedder_from_config
 from dgsdp.model import DanceDenoiser
 from dgsdp.model.layers import Attention
+from dgsdp.trained.spec import RunSpec
 from dgsdp.training import DanceDiffusion
-from dgsdp.training.spec import RunSpec
 
 EDGE = {"rotary_placement": "input", "cross_attention_rotary": True, "null_music": "output"}
 

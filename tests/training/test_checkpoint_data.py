@@ -13,8 +13,8 @@ from gen_helpers import tiny_model  # noqa: E402
 
 from dgsdp.errors import CheckpointError  # noqa: E402
 from dgsdp.generation import DanceGenerator  # noqa: E402
-from dgsdp.training import RunSpec, load_checkpoint  # noqa: E402
-from dgsdp.training.spec import _upgrade_format1  # noqa: E402
+from dgsdp.trained import RunSpec, load_model  # noqa: E402
+from dgsdp.trained.spec import _upgrade_format1  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def save(tmp_path, ckpt, name="x.ckpt") -> Path:
 
 
 def test_a_clean_checkpoint_loads_and_keeps_its_spec(saved, tmp_path):
-    model = load_checkpoint(save(tmp_path, saved))
+    model = load_model(save(tmp_path, saved))
     assert model.spec == RunSpec.from_dict(saved["hyper_parameters"])
     assert model.spec.conditioning.style_dim == 10
 
@@ -55,7 +55,7 @@ def test_a_foreign_target_is_refused_naming_key_and_value(saved, tmp_path, secti
     }
     path = save(tmp_path, ckpt)
     with pytest.raises(CheckpointError, match=rf"{section}\._target_ = '{target}'"):
-        generator = DanceGenerator(load_checkpoint(path), cache_dir=tmp_path / "cache")
+        generator = DanceGenerator(load_model(path), cache_dir=tmp_path / "cache")
         generator.audio_encoder  # noqa: B018 - building the audio encoder is where a stored audio config is used
         generator.embedder()
     assert not marker.exists()
@@ -65,13 +65,13 @@ def test_a_target_nested_in_a_stored_config_is_refused(saved, tmp_path):
     marker = tmp_path / "marker"
     ckpt = copy.deepcopy(saved)
     ckpt["hyper_parameters"]["style"]["vocab"] = {"_target_": "builtins.open", "file": str(marker), "mode": "w"}
-    generator = DanceGenerator(load_checkpoint(save(tmp_path, ckpt)), cache_dir=tmp_path / "cache")
+    generator = DanceGenerator(load_model(save(tmp_path, ckpt)), cache_dir=tmp_path / "cache")
     with pytest.raises(CheckpointError, match=r"style\.vocab\._target_"):
         generator.embedder()
     ckpt = copy.deepcopy(saved)
     ckpt["hyper_parameters"]["style"]["kind"] = "prompt"
     ckpt["hyper_parameters"]["style"]["text_encoder"] = {"_target_": "subprocess.run", "args": ["touch", str(marker)]}
-    generator = DanceGenerator(load_checkpoint(save(tmp_path, ckpt)), cache_dir=tmp_path / "cache")
+    generator = DanceGenerator(load_model(save(tmp_path, ckpt)), cache_dir=tmp_path / "cache")
     with pytest.raises(CheckpointError, match=r"style\.text_encoder\._target_ = 'subprocess.run'"):
         generator.embedder().text_encoder  # noqa: B018
     assert not marker.exists()
@@ -82,7 +82,7 @@ def test_stored_write_locations_are_replaced_by_the_callers(saved, tmp_path):
     elsewhere = tmp_path / "not-here"
     ckpt["hyper_parameters"]["style"]["cache_dir"] = str(elsewhere)
     ckpt["hyper_parameters"]["audio"]["cache_dir"] = str(elsewhere)
-    generator = DanceGenerator(load_checkpoint(save(tmp_path, ckpt)), cache_dir=tmp_path / "mine")
+    generator = DanceGenerator(load_model(save(tmp_path, ckpt)), cache_dir=tmp_path / "mine")
     assert generator.embedder().cache_dir == tmp_path / "mine"
     assert "cache_dir" not in generator.spec.audio
     assert not elsewhere.exists()
@@ -102,7 +102,7 @@ def test_missing_or_malformed_fields_are_named(saved, tmp_path, change, message)
     ckpt = copy.deepcopy(saved)
     change(ckpt["hyper_parameters"])
     with pytest.raises(CheckpointError, match=message):
-        load_checkpoint(save(tmp_path, ckpt))
+        load_model(save(tmp_path, ckpt))
 
 
 def test_a_pickled_object_in_a_checkpoint_is_never_loaded(saved, tmp_path):
@@ -116,7 +116,7 @@ def test_a_pickled_object_in_a_checkpoint_is_never_loaded(saved, tmp_path):
     ckpt["extra"] = Payload()
     path = save(tmp_path, ckpt)  # unpickling this file would call open(marker, "w")
     with pytest.raises(CheckpointError, match="cannot read checkpoint"):
-        load_checkpoint(path)
+        load_model(path)
     assert not marker.exists()
 
 

@@ -7,8 +7,8 @@ import pytest
 from dgsdp.cli.config import compose_config
 from dgsdp.cli.train import audio_encoder_from_config, style_embedder_from_config
 from dgsdp.resources import CONFIG_DIR
+from dgsdp.trained.spec import RunSpec
 from dgsdp.training import DanceDiffusion
-from dgsdp.training.spec import RunSpec
 
 EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
 PAPER_ROWS = {

@@ -13,7 +13,7 @@ from dgsdp.cli.config import compose_config
 from dgsdp.cli.train import train
 from dgsdp.errors import CheckpointError, ConfigError
 from dgsdp.generation import DanceGenerator
-from dgsdp.training import load_checkpoint
+from dgsdp.trained import load_model
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "generation"))
 from gen_helpers import tiny_model  # noqa: E402
@@ -27,7 +27,7 @@ def save(path: Path, model, state: dict | None = None) -> Path:
 def test_floor_height_round_trips_through_a_checkpoint(tmp_path):
     model = tiny_model()
     model.set_floor_height(0.42)
-    loaded = load_checkpoint(save(tmp_path / "floor.ckpt", model))
+    loaded = load_model(save(tmp_path / "floor.ckpt", model))
     assert float(loaded.floor_height) == pytest.approx(0.42)
     assert DanceGenerator(loaded, cache_dir=tmp_path / "cache").floor_height == pytest.approx(0.42)
 
@@ -36,7 +36,7 @@ def test_checkpoint_without_floor_height_loads_with_zero(tmp_path):
     model = tiny_model()
     model.set_floor_height(0.42)
     state = {k: v for k, v in model.state_dict().items() if k != "floor_height"}
-    loaded = load_checkpoint(save(tmp_path / "old.ckpt", model, state))
+    loaded = load_model(save(tmp_path / "old.ckpt", model, state))
     assert float(loaded.floor_height) == 0.0
 
 
@@ -50,7 +50,7 @@ def test_damaged_floor_height_is_refused(tmp_path, value):
     state = dict(model.state_dict())
     state["floor_height"] = value
     with pytest.raises(CheckpointError, match="floor_height|floor"):
-        load_checkpoint(save(tmp_path / "bad.ckpt", model, state))
+        load_model(save(tmp_path / "bad.ckpt", model, state))
 
 
 def test_set_floor_height_checks_its_value():
@@ -78,4 +78,4 @@ def test_training_stores_the_floor_of_its_data(tmp_path, tiny_synthetic):
     result = train(compose_config("train", overrides, output_dir=tmp_path / "run"))
     ckpt = torch.load(result["checkpoint"], map_location="cpu", weights_only=True)
     assert float(ckpt["state_dict"]["floor_height"]) == pytest.approx(0.25, abs=1e-3)
-    assert float(load_checkpoint(result["checkpoint"]).floor_height) == pytest.approx(0.25, abs=1e-3)
+    assert float(load_model(result["checkpoint"]).floor_height) == pytest.approx(0.25, abs=1e-3)

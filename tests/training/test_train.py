@@ -13,7 +13,7 @@ import yaml
 from dgsdp.cli.config import compose_config
 from dgsdp.cli.train import train
 from dgsdp.errors import ConfigError
-from dgsdp.training import load_checkpoint
+from dgsdp.trained import load_model
 
 COMBOS = [
     ("librosa", "none", "modulation"),
@@ -95,7 +95,7 @@ def test_checkpoint_is_plain_and_loads_weights_only(tmp_path, tiny_synthetic):
     assert ckpt["hyper_parameters"]["conditioning"]["audio_dim"] == 35
     assert "ema.module.output_proj.weight" in ckpt["state_dict"]
     assert "normalizer.data_min" in ckpt["state_dict"] and "style_vectors" in ckpt["state_dict"]
-    model = load_checkpoint(result["checkpoint"])
+    model = load_model(result["checkpoint"])
     assert torch.equal(model.normalizer.data_min, ckpt["state_dict"]["normalizer.data_min"])
 
 
@@ -213,7 +213,7 @@ def test_it_learns_and_music_helps(tmp_path):
         cfg = compose_config("train", [*common, f"audio={audio}"], output_dir=tmp_path / audio)
         datamodule = instantiate(cfg.data, audio_encoder=audio_encoder_from_config(cfg))
         result = train(cfg)
-        model = load_checkpoint(result["checkpoint"])
+        model = load_model(result["checkpoint"])
         trainer = L.Trainer(logger=False, enable_progress_bar=False, accelerator="cpu")
         val_loss[audio] = trainer.validate(model, datamodule=datamodule, verbose=False)[0]["val/loss"]
         if audio == "librosa":  # a freshly initialised model of the same config (its EMA = its initial weights)

@@ -59,7 +59,7 @@ def edge_run_spec(arch: EdgeArchitecture, n_heads: int = EDGE_HEADS, record: dic
 
     from dgsdp.cli.config import compose_config
     from dgsdp.registry import build
-    from dgsdp.training.spec import RunSpec
+    from dgsdp.trained.spec import RunSpec
 
     overrides = edge_overrides(arch, n_heads)
     cfg = compose_config("train", overrides)
@@ -87,8 +87,8 @@ def sha256(path: Path) -> str:
 
 
 def build_model(edge: EdgeCheckpoint, weights: str = "ema", n_heads: int = EDGE_HEADS) -> Any:
-    """A :class:`~dgsdp.training.module.DanceDiffusion` holding EDGE's weights and normaliser (floor height 0)."""
-    from dgsdp.training.module import DanceDiffusion
+    """A :class:`~dgsdp.trained.TrainedModel` holding EDGE's weights and normaliser (floor height 0)."""
+    from dgsdp.trained import TrainedModel
 
     state = edge.weights(weights)
     arch = edge_architecture(state)
@@ -104,7 +104,7 @@ def build_model(edge: EdgeCheckpoint, weights: str = "ema", n_heads: int = EDGE_
         **EDGE_SAMPLING,
     }
     spec = edge_run_spec(arch, n_heads, record)
-    model = DanceDiffusion(spec, source="checkpoint")
+    model = TrainedModel(spec, source="checkpoint")
     ours = to_dgsdp(state, arch)
     model.denoiser.load_state_dict(ours)
     model.ema.module.load_state_dict(ours)
@@ -137,7 +137,7 @@ def import_edge(
 ) -> Path:
     """Read EDGE's checkpoint ``source`` safely and write it to ``out`` as a dgsdp checkpoint (atomically: a
     failed import leaves nothing at ``out``, and an existing ``out`` is replaced only by a complete file)."""
-    from dgsdp.training.module import CHECKPOINT_FORMAT, check_floor_height, plain
+    from dgsdp.trained.model import CHECKPOINT_FORMAT, check_floor_height, plain
 
     out = Path(out).expanduser()
     if out.is_dir():
