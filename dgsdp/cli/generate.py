@@ -120,7 +120,7 @@ class GenerateJob:
             song, plan, edit=self.edit, seconds=self.seconds, blend_seconds=self.blend_seconds,
             num_samples=self.num_samples, sampling=self.sampling, seed=self.seed, progress=self.progress,
             cleanup=self.cleanup, beat_sync=self.beat_sync,
-        )  # fmt: skip
+        ).motion  # fmt: skip
 
 
 def generate(cfg: DictConfig) -> GenerationReport:

@@ -11,6 +11,7 @@ from dgsdp.generation.longform import (
     stitch_windows,
 )
 from dgsdp.generation.pipeline import (
+    Dance,
     DanceGenerator,
     EditSettings,
     StylePlan,
@@ -22,6 +23,7 @@ from dgsdp.sampling import SamplingSettings
 
 __all__ = [
     "ChunkedDenoiser",
+    "Dance",
     "DanceGenerator",
     "DanceRequest",
     "EditSettings",

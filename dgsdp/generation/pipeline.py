@@ -27,6 +27,8 @@ from dgsdp.generation.beatsync import BeatSync, song_beats, sync_to_beats
 from dgsdp.generation.longform import DanceRequest, WindowLayout, sample_items
 from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styles
 from dgsdp.motion import POSE_DIM, FloorCleanup, clean_motion, pose_to_joints, unpack_pose
+from dgsdp.motion.rotation import matrix_to_axis_angle
+from dgsdp.resources import home
 from dgsdp.sampling import SamplingSettings
 from dgsdp.trained import TrainedModel, load_model
 from dgsdp.utils.device import resolve_device
@@ -48,6 +50,47 @@ class EditSettings:
     with_root: bool = False
     keyframes: Sequence[int] | None = None
     keyframe_seconds: Sequence[float] | None = None
+
+
+@dataclass
+class Dance:
+    """The dances made to one song: ``motion`` (num_samples, T, 151), unnormalised, z-up, at ``fps``, on the run's
+    floor at ``floor_height`` (z-up metres). ``joints`` and :meth:`smpl` give them as joint positions and SMPL
+    parameters; :meth:`save` writes the files generate.py writes."""
+
+    motion: torch.Tensor
+    fps: int
+    floor_height: float = 0.0
+    song: Path | None = None
+    style: str | None = None
+
+    @property
+    def joints(self) -> np.ndarray:
+        """Joint positions (num_samples, T, 24, 3), z-up metres (forward kinematics of the SMPL skeleton)."""
+        return pose_to_joints(self.motion.double()).float().numpy()
+
+    def smpl(self, sample: int = 0) -> dict[str, np.ndarray]:
+        """SMPL parameters of one sample: ``poses`` (T, 72) axis-angle per joint in SMPL order, ``trans`` (T, 3)
+        root translation in metres (both z-up, as the model's vectors)."""
+        parts = unpack_pose(self.motion[sample].double())
+        poses = matrix_to_axis_angle(parts.rotmats).reshape(len(self.motion[sample]), -1)
+        return {"poses": poses.float().numpy(), "trans": parts.root_trans.float().numpy()}
+
+    def save(
+        self, path: str | os.PathLike, formats: Sequence[str] = ("npy", "pkl", "bvh"), sample: int | None = None
+    ) -> list[Path]:
+        """Write the dances as ``path`` + .npy / .pkl / .bvh / .glb / .mp4 (see :func:`write_motion`); with several
+        samples (and ``sample`` None) each gets ``_sample<k>`` appended to its name."""
+        base = Path(path)
+        samples = range(len(self.motion)) if sample is None else [sample]
+        written: list[Path] = []
+        for k in samples:
+            name = base if len(samples) == 1 else base.with_name(f"{base.name}_sample{k}")
+            written += write_motion(
+                self.motion[k], name, fps=self.fps, audio_path=self.song, formats=formats, title=self.style,
+                floor_height=self.floor_height,
+            )  # fmt: skip
+        return written
 
 
 @dataclass
@@ -112,10 +155,14 @@ class DanceGenerator:
         cls,
         path: str | os.PathLike,
         *,
-        cache_dir: str | os.PathLike,
+        cache_dir: str | os.PathLike | None = None,
         device: str = "cpu",
         max_song_seconds: float | None = None,
     ) -> DanceGenerator:
+        """The model of a checkpoint written by train.py (or the EDGE import), read as data. ``cache_dir``: where
+        music features are cached (default: ``data/cache`` of the working folder, as the command-line tools)."""
+        if cache_dir is None:
+            cache_dir = home() / "data" / "cache"
         return cls(
             load_model(str(path)),
             cache_dir=cache_dir,
@@ -308,8 +355,8 @@ class DanceGenerator:
 
     def dance_to_song(
         self,
-        song: Path,
-        plan: StylePlan,
+        song: str | os.PathLike,
+        style: str | StylePlan | None = None,
         *,
         edit: EditSettings | None = None,
         seconds: float | None = None,
@@ -320,10 +367,13 @@ class DanceGenerator:
         progress: bool = False,
         cleanup: bool | FloorCleanup = True,
         beat_sync: bool | BeatSync = True,
-    ) -> torch.Tensor:
-        """Motions (num_samples, T, 151) danced to a whole song (or its first ``seconds``) in a resolved style,
-        with an optional editing task: music features, style per frame, editing mask, then :meth:`generate`.
-        ``cleanup`` and ``beat_sync``: see :meth:`finish`."""
+    ) -> Dance:
+        """Dances to a whole song (or its first ``seconds``) in a style (a genre, a free-text description, a
+        schedule, or a :class:`StylePlan` from :meth:`resolve_style`; None for models without style), with an
+        optional editing task: music features, style per frame, editing mask, then :meth:`generate`, then
+        :meth:`finish` (``cleanup`` and ``beat_sync``)."""
+        song = Path(song)
+        plan = style if isinstance(style, StylePlan) else self.resolve_style(style)
         music, n_frames = self.music_features(song, seconds, sampling)
         style = self.style_frames(plan, n_frames, blend_seconds)
         mask, known = self.edit_inputs(edit or EditSettings(), n_frames)
@@ -333,7 +383,8 @@ class DanceGenerator:
         )  # fmt: skip
         retime = cleanup is not False and beat_sync is not False and mask is None and music is not None
         beats = song_beats(song, self.cache, self.audio_encoder) if retime else None
-        return self.finish(motions, beats, mask=mask, cleanup=cleanup, beat_sync=beat_sync)
+        motions = self.finish(motions, beats, mask=mask, cleanup=cleanup, beat_sync=beat_sync)
+        return Dance(motions, self.fps, self.floor_height, song, plan.text)
 
     def finish(
         self,

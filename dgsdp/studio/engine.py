@@ -137,7 +137,7 @@ class Engine:
         motion = gen.dance_to_song(
             request.song, plan, edit=edit, blend_seconds=float(request.blend_seconds), sampling=sampling,
             seed=int(request.seed), progress=progress, cleanup=bool(request.cleanup),
-        )[0]  # fmt: skip
+        ).motion[0]  # fmt: skip
         title = f"{request.song.stem} | {plan.text}" if plan.text else request.song.stem
         files = write_motion(
             motion,
