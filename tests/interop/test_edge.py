@@ -110,7 +110,7 @@ def test_jukebox_feature_checkpoints_import_with_the_jukebox_encoder(tmp_path):
     write_edge_checkpoint(src, 4800, prefix=True, **SIZES)
     model = load_model(import_edge(src, tmp_path / "juke.ckpt", floor_height=0.0))
     assert model.spec.conditioning.audio_dim == 4800 and model.spec.audio["_target_"] == "dgsdp.audio.JukeboxEncoder"
-    assert model.spec.audio["layer"] == 66
+    assert model.spec.audio["layer"] == 66 and model.spec.audio["per_window"] and model.spec.audio["fp16"] is False
 
 
 def bad_case(tmp_path: Path, name: str) -> Path:

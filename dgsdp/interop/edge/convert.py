@@ -30,7 +30,7 @@ EDGE_SAMPLING = {"guidance_weight": 2.0, "window_frames": 150, "stride_frames": 
 # audio config group and overrides per EDGE feature type
 # (EDGE trained and sampled on features computed per 5 s slice: per_window)
 AUDIO_OVERRIDES = {
-    "jukebox": ["audio=jukebox", "audio.per_window=true"],
+    "jukebox": ["audio=jukebox", "audio.per_window=true", "audio.fp16=false"],  # EDGE: float32 activations
     "baseline": [
         "audio=librosa", "audio.loudness_lufs=null", "audio.standardize=none", "audio.mfcc_fmax_hz=null",
         "audio.per_window=true",
