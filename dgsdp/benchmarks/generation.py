@@ -9,14 +9,14 @@ autocast). It prints one table row per model, device and precision.
 from __future__ import annotations
 
 import argparse
-import contextlib
+import tempfile
 import time
 from dataclasses import dataclass
 
 import torch
 
-from dgsdp.generation.longform import sample_long
-from dgsdp.sampling import Guidance
+from dgsdp.generation import DanceGenerator
+from dgsdp.sampling import GuidanceSettings, SamplingSettings
 from dgsdp.trained import TrainedModel
 from dgsdp.trained.spec import RunSpec
 
@@ -54,18 +54,17 @@ def time_generation(size: str, device: str, *, seconds: float, steps: int, bf16:
     n = int(round(seconds * FPS))
     music = torch.randn(n, dims["audio_dim"], device=device)
     style = torch.randn(dims["style_dim"], device=device)
-    guidance = Guidance(2.0, 1.0)
-    autocast = torch.autocast(device, dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
+    generator = DanceGenerator(model, cache_dir=tempfile.mkdtemp(prefix="dgsdp-bench-"), device=device)
 
     def run(n_steps: int) -> float:
+        sampling = SamplingSettings(
+            method="ddim", steps=n_steps, guidance=GuidanceSettings(music=2.0, style=1.0, longform_ramp_fraction=0.0),
+            bf16=bf16,
+        )  # fmt: skip
         if device == "cuda":
             torch.cuda.synchronize()
         start = time.perf_counter()
-        with autocast:
-            sample_long(
-                model.sampler(), model.normalizer, n, music=music, style=style, steps=n_steps,
-                guidance=guidance, device=device, generator=torch.Generator(device).manual_seed(0),
-            )  # fmt: skip
+        generator.generate(n, music=music, style=style, sampling=sampling, seed=0)
         if device == "cuda":
             torch.cuda.synchronize()
         return time.perf_counter() - start

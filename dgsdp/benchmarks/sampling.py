@@ -16,8 +16,8 @@ is DDIM-50 through the per-step conditioning path, as sampling ran before the co
 from __future__ import annotations
 
 import argparse
-import contextlib
 import statistics
+import tempfile
 import time
 from dataclasses import dataclass
 
@@ -25,8 +25,8 @@ import numpy as np
 import torch
 
 from dgsdp.benchmarks.generation import SIZES, build_model
-from dgsdp.generation.longform import sample_long
-from dgsdp.sampling import Guidance, SamplingSettings, check_method
+from dgsdp.generation import DanceGenerator
+from dgsdp.sampling import GuidanceSettings, SamplingSettings, check_method
 
 FPS = 30
 DEFAULT_METHOD, DEFAULT_STEPS = SamplingSettings.method, SamplingSettings.steps  # generate.py's default
@@ -80,13 +80,15 @@ def run_benchmark(
     per_step_baseline: bool = True,
 ) -> dict[str, list[float]]:
     model = build_model(size).to(device)
-    sampler = model.sampler()
-    per_step = PerStepDenoiser(sampler.denoiser)
+    per_step_model = build_model(size).to(device)  # the same architecture, its denoiser called step by step
+    per_step_model.ema.module = PerStepDenoiser(per_step_model.ema.module)
+    generators = {
+        False: DanceGenerator(model, cache_dir=tempfile.mkdtemp(prefix="dgsdp-bench-"), device=device),
+        True: DanceGenerator(per_step_model, cache_dir=tempfile.mkdtemp(prefix="dgsdp-bench-"), device=device),
+    }
     music = song_features(size, seconds).to(device)
     style = torch.randn(SIZES[size]["style_dim"], generator=torch.Generator().manual_seed(1)).to(device)
     n = music.shape[0]
-    guidance = Guidance(2.0, 1.0, ramp_fraction=0.5)
-    autocast = torch.autocast(device, dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
     method, steps = default
     settings = [Setting("ddim-50", "ddim", 50), Setting(f"{method}-{steps}", method, steps)]
     if per_step_baseline:
@@ -94,16 +96,14 @@ def run_benchmark(
     settings += [Setting(f"{method}-{steps} chunk {c}", method, steps, chunk_size=c) for c in chunk_sizes]
 
     def run(s: Setting, steps: int | None = None) -> float:
-        run_sampler = sampler
-        if s.per_step:
-            run_sampler = type(sampler)(per_step, sampler.diffusion, style_guidance=sampler.style_guidance)
+        sampling = SamplingSettings(
+            method=s.method, steps=steps or s.steps, eta=s.eta, guidance=GuidanceSettings(music=2.0, style=1.0),
+            chunk_size=s.chunk_size, bf16=bf16,
+        )  # fmt: skip
         if device == "cuda":
             torch.cuda.synchronize()
         start = time.perf_counter()
-        with autocast:
-            sample_long(run_sampler, model.normalizer, n, music=music, style=style, method=s.method,
-                        steps=steps or s.steps, eta=s.eta, guidance=guidance, chunk_size=s.chunk_size,
-                        device=device, generator=torch.Generator(device).manual_seed(0))  # fmt: skip
+        generators[s.per_step].generate(n, music=music, style=style, sampling=sampling, seed=0)
         if device == "cuda":
             torch.cuda.synchronize()
         return time.perf_counter() - start

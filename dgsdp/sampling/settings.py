@@ -18,10 +18,13 @@ LONGFORM_MODES = ("fuse", "edge")
 class GuidanceSettings:
     """Classifier-free guidance weights; see :class:`~dgsdp.sampling.Guidance`."""
 
-    music: float = 2.5  # chosen on real songs (docs/benchmarks.md#real-songs); the papers used 2
-    style: float = 1.0  # only used by models trained with style dropout
+    # The weight on the music: 1 = plain conditional sampling; above 1 the dance follows the music more strongly, at
+    # the risk of exaggerated motion where the song is unlike the training music. 2.5 was chosen on 32 real songs
+    # (docs/benchmarks.md#real-songs); the papers used 2 (sampling=edge, and the evaluation protocols' own weights).
+    music: float = 2.5
+    style: float = 1.0  # only used by models trained with style dropout (diffusion.style_drop_prob > 0)
     longform_ramp_fraction: float = 0.5  # dances longer than one window: weights rise from 0 over this fraction
-    edit_cap_below_t: int = 100  # with an editing mask, weights are capped at 1 below this diffusion step
+    edit_cap_below_t: int = 100  # with an editing mask, weights are capped at 1 below this diffusion step (EDGE)
 
 
 @dataclass
@@ -35,9 +38,11 @@ class SamplingSettings:
     units (None: the run's ``diffusion.clip_x0``; the papers: 1). chunk_size > 0: at most this many windows per
     denoiser call (memory). batch_size: independent dances sampled together. bf16: autocast on CUDA."""
 
-    method: str = "dpmpp_2m"  # the default of conf/sampling (dpmpp_2m.yaml); docs/sampling.md says why
+    # The defaults of the sampling config group (conf/sampling/dpmpp_2m.yaml names this class as its schema and
+    # writes no value of its own): the one place they are written. docs/sampling.md says why these.
+    method: str = "dpmpp_2m"
     steps: int = 10
-    eta: float = 1.0
+    eta: float = 1.0  # DDIM only: stochasticity (1 = as stochastic as DDPM, 0 = deterministic)
     guidance: GuidanceSettings = field(default_factory=GuidanceSettings)
     window_frames: int | None = None
     stride_frames: int = 75
