@@ -13,7 +13,8 @@ import pytest
 import soundfile as sf
 
 from dgsdp.benchmarks import realsongs as rs
-from dgsdp.errors import ConfigError
+from dgsdp.benchmarks.realsongs import songs
+from dgsdp.errors import ConfigError, DgsdpError
 
 FPS = 30
 
@@ -310,14 +311,14 @@ def test_prepare_leaves_out_a_song_it_cannot_write_whole(tmp_path, monkeypatch):
     src = tmp_path / "testsongs"
     src.mkdir()
     click_song(src / "beeps.wav", 31.0)
-    real_ffmpeg = rs._ffmpeg
+    real_ffmpeg = songs._ffmpeg
 
     def failing_96k(args, out):
         if out.name.endswith("-96k.wav"):
-            raise rs.DgsdpError("ffmpeg failed writing it (simulated)")
+            raise DgsdpError("ffmpeg failed writing it (simulated)")
         real_ffmpeg(args, out)
 
-    monkeypatch.setattr(rs, "_ffmpeg", failing_96k)
+    monkeypatch.setattr(songs, "_ffmpeg", failing_96k)
     out = tmp_path / "set"
     assert rs.main(["prepare", str(out), "--sources", str(src)]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["songs.json"]  # no half-written song

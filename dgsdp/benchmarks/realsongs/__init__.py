@@ -1,0 +1,52 @@
+"""Real-song benchmark: whole-song dances to songs the model never saw, measured against the targets of a usable
+dance (no runaway speeds, feet on the floor, invisible long-form seams, motion on the beat).
+
+Two commands:
+
+``python -m dgsdp.benchmarks.realsongs prepare <out folder> [--sources DIR ...] [--max-songs N]`` picks a varied
+set of real songs (tempo, loudness, length) from the given folders (by default where the Debian packages
+``hyperrogue-music``, ``drascula-music`` and ``fb-music-high`` put their music) and writes, with ffmpeg, each
+original and three hard versions of it: ``<song>-loud.wav`` (+20 dB, hard-clipped at full scale),
+``<song>-8k.wav`` (8 kHz mono) and ``<song>-96k.wav`` (96 kHz), plus ``songs.json`` describing the set.
+
+``python -m dgsdp.benchmarks.realsongs <folder> --checkpoint <ckpt> [overrides of conf/generate.yaml ...]``
+dances to every audio file of the folder exactly as ``generate.py checkpoint=<ckpt> music=<song> style=<style>``
+does (same config, same :meth:`DanceGenerator.dance_to_song` call; no files written) and prints, per song, at
+30 FPS from the 24 SMPL joints (z-up metres): the p99.9 joint speed, the deepest penetration below the floor, the
+fraction of frames floating above it, the seam ratio of the long-form window boundaries, the mean joint speed
+against the training data's, and the beat alignment score against the same motion shifted by half a beat; then a
+summary line. The metric functions below are plain numpy on joints (T, 24, 3).
+"""
+
+from dgsdp.benchmarks.realsongs.measures import (
+    BeatScores,
+    SongFigures,
+    beat_scores,
+    dance_figures,
+    floating_fraction,
+    mean_joint_speed,
+    p999_joint_speed,
+    penetration_cm,
+    seam_ratio,
+    training_figures,
+    window_boundaries,
+    windowed_speed,
+)
+from dgsdp.benchmarks.realsongs.report import (
+    SongResult,
+    format_row,
+    header,
+    style_plan,
+    style_summary_lines,
+    styles_for,
+    summary_line,
+)
+from dgsdp.benchmarks.realsongs.run import main, run_benchmark
+from dgsdp.benchmarks.realsongs.songs import SongInfo, analyse_song, pick_varied, prepare, song_family, write_versions
+
+__all__ = [
+    "BeatScores", "SongFigures", "SongInfo", "SongResult", "analyse_song", "beat_scores", "dance_figures",
+    "floating_fraction", "format_row", "header", "main", "mean_joint_speed", "p999_joint_speed", "penetration_cm",
+    "pick_varied", "prepare", "run_benchmark", "seam_ratio", "song_family", "style_plan", "style_summary_lines",
+    "styles_for", "summary_line", "training_figures", "window_boundaries", "windowed_speed", "write_versions",
+]  # fmt: skip

@@ -1,0 +1,226 @@
+"""The real-song benchmark's commands: ``prepare`` a song set, and dance to it and measure (``main``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from dgsdp.benchmarks.realsongs.measures import (
+    FLOATING_HEIGHT_M,
+    FLOATING_MAX_FRACTION,
+    P999_SPEED_MAX_M_S,
+    PENETRATION_MAX_CM,
+    SEAM_RATIO_MAX,
+    _no_nan,
+    dance_figures,
+    training_figures,
+    window_boundaries,
+)
+from dgsdp.benchmarks.realsongs.report import (
+    SongResult,
+    _fmt,
+    format_row,
+    header,
+    style_plan,
+    style_summary_lines,
+    summary_line,
+)
+from dgsdp.benchmarks.realsongs.songs import DEBIAN_MUSIC_DIRS, MIN_SONG_SECONDS, prepare
+from dgsdp.errors import ConfigError, DgsdpError
+
+
+def run_benchmark(
+    folder: Path,
+    checkpoint: str,
+    overrides: Sequence[str] = (),
+    *,
+    style: str | None = None,
+    all_styles: bool = False,
+    floor_m: float | None = None,
+    train_speed: float | None = None,
+    json_path: Path | None = None,
+    motions_dir: Path | None = None,
+    out: Any = None,
+) -> list[SongResult]:
+    """Dance to every song of ``folder`` as generate.py would and print the table and the summary line (to ``out``,
+    default stdout; progress goes to stderr). ``all_styles``: every song in every genre of the checkpoint (a row and
+    a dance each), and a summary line per genre after the summary line."""
+    import torch
+
+    from dgsdp.cli.config import compose_config
+    from dgsdp.cli.generate import GenerateJob
+    from dgsdp.generation.beatsync import song_beats
+    from dgsdp.generation.pipeline import find_songs, write_motion
+    from dgsdp.motion import pose_to_joints
+
+    out = sys.stdout if out is None else out
+    if not folder.is_dir():
+        raise ConfigError(f"{folder} is not a folder of songs (build one with: python -m {__spec__.name} prepare DIR)")
+    cfg = compose_config("generate", [f"checkpoint={checkpoint}", *overrides])
+    songs = find_songs(str(folder))
+    job = GenerateJob.from_config(cfg)
+    generator, sampling = job.generator, job.sampling
+    window = min(sampling.window_frames or generator.window, generator.model.denoiser.seq_len)
+    stride = min(sampling.stride_frames, window)
+    floor = generator.floor_height if floor_m is None else float(floor_m)
+    reference, train_source = training_figures(
+        generator.spec, cfg.paths.cache_dir, floor_m=floor, window=window, stride=stride
+    )
+    if train_speed is not None:
+        train_source = "--train-speed"
+    else:
+        train_speed = math.nan if reference is None else float(reference["mean_speed_m_s"])
+    genres: list[str | None] = [None]
+    if generator.style_dim:
+        genres = list(generator.embedder().vocab.codes)
+    dances = style_plan(songs, genres, None if style is None else str(style), all_styles)
+    plans: dict[str | None, Any] = {}
+    print(
+        f"checkpoint {checkpoint}; {len(songs)} songs in {folder}; sampling {sampling.method}-{sampling.steps} "
+        f"guidance music={sampling.guidance.music:g}; windows {window} frames, stride {stride}; floor z={floor:g} m; "
+        f"training mean joint speed {_fmt(train_speed, '.3f')} m/s from {train_source}",
+        file=out,
+    )
+    if reference is not None:
+        r = reference
+        print(
+            f"training data ({r['n_dances']:g} dances, {r['seconds']:.0f} s) on the same measures: "
+            f"p999={r['p999_speed_m_s']:.2f} pen_cm={r['penetration_cm']:.1f} float={r['floating_fraction']:.3f} "
+            f"seam={_fmt(r['seam_ratio'], '.2f')} speed={r['mean_speed_m_s']:.3f}",
+            file=out,
+        )
+    width = max([len(s.name) for s in songs] + [4])
+    print(header(width), file=out, flush=True)
+    results: list[SongResult] = []
+    for k, (song, song_style) in enumerate(dances, 1):
+        print(f"[{k}/{len(dances)}] {song.name} (style {song_style})", file=sys.stderr, flush=True)
+        result = SongResult(song.name, song_style)
+        try:
+            if song_style not in plans:
+                plans[song_style] = generator.resolve_style(song_style)
+            start = time.perf_counter()
+            generator.music_features(song, cfg.seconds)  # features first (cached), so that the dance time is sampling
+            beats = song_beats(song, generator.cache, generator.audio_encoder)
+            result.feature_seconds = time.perf_counter() - start
+            start = time.perf_counter()
+            motions = job.dance(song, plans[song_style])
+            result.dance_seconds = time.perf_counter() - start
+            if motions_dir is not None:
+                name = f"{song.stem}__{song_style}" if all_styles else song.stem
+                write_motion(motions[0], motions_dir / name, fps=generator.fps, formats=["npy"])
+            joints = pose_to_joints(motions[0].double()).numpy()
+            boundaries = window_boundaries(len(joints), window, stride)
+            result.figures = dance_figures(joints, music_beats=beats, boundaries=boundaries, floor_m=floor)
+            result.checks = result.figures.checks()
+        except (DgsdpError, torch.cuda.OutOfMemoryError) as e:
+            result.error = str(e).replace("\n", " ")
+        results.append(result)
+        print(format_row(result, train_speed, width), file=out, flush=True)
+    print(summary_line(results, train_speed), file=out, flush=True)
+    if all_styles:
+        print("\n".join(style_summary_lines(results)), file=out, flush=True)
+    if json_path is not None:
+        from dgsdp.utils.io import atomic_write_text
+
+        payload = {
+            "folder": str(folder),
+            "checkpoint": str(checkpoint),
+            "overrides": list(overrides),
+            "all_styles": all_styles,
+            "floor_m": floor,
+            "train_speed_m_s": None if math.isnan(train_speed) else train_speed,
+            "train_speed_source": train_source,
+            "training_data_figures": reference,
+            "window_frames": window,
+            "stride_frames": stride,
+            "thresholds": {
+                "p999_speed_m_s_below": P999_SPEED_MAX_M_S,
+                "penetration_cm_at_most": PENETRATION_MAX_CM,
+                "floating_fraction_below": FLOATING_MAX_FRACTION,
+                "floating_height_m": FLOATING_HEIGHT_M,
+                "seam_ratio_below": SEAM_RATIO_MAX,
+            },
+            "songs": [
+                {
+                    "name": r.name,
+                    "style": r.style,
+                    "error": r.error,
+                    "feature_seconds": r.feature_seconds,
+                    "dance_seconds": r.dance_seconds,
+                    "figures": None if r.figures is None else asdict(r.figures),
+                    "speed_ratio": None
+                    if r.figures is None or math.isnan(train_speed)
+                    else r.figures.mean_speed_m_s / train_speed,
+                    "checks": r.checks,
+                    "passed": r.passed,
+                }
+                for r in results
+            ],
+            "summary": summary_line(results, train_speed),
+        }
+        atomic_write_text(json_path, json.dumps(_no_nan(payload), indent=2, allow_nan=False) + "\n")
+    return results
+
+
+def _prepare_main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m dgsdp.benchmarks.realsongs prepare",
+        description="Build the real-song set: varied originals plus loud (+20 dB, clipped), 8 kHz mono and "
+        "96 kHz versions, written with ffmpeg.",
+    )
+    parser.add_argument("out", type=Path, help="folder to write the song set into")
+    parser.add_argument(
+        "--sources", nargs="+", default=list(DEBIAN_MUSIC_DIRS),
+        help="folders of songs (default: where the Debian packages hyperrogue-music, drascula-music and "
+        "fb-music-high install theirs)",
+    )  # fmt: skip
+    parser.add_argument("--max-songs", type=int, default=8, help="how many originals to pick (default 8)")
+    parser.add_argument("--min-seconds", type=float, default=MIN_SONG_SECONDS, help="shortest song to consider")
+    args = parser.parse_args(argv)
+    return prepare(args.out, args.sources, args.max_songs, args.min_seconds)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        if argv and argv[0] == "prepare":
+            return _prepare_main(argv[1:])
+        parser = argparse.ArgumentParser(
+            prog="python -m dgsdp.benchmarks.realsongs",
+            description="Dance to every song of a folder as generate.py does and measure the dances "
+            "(build a song set first with the 'prepare' command).",
+        )
+        parser.add_argument("folder", type=Path, help="folder of songs (wav, mp3, ogg, flac)")
+        parser.add_argument("overrides", nargs="*", help="overrides of conf/generate.yaml, e.g. sampling.steps=10")
+        parser.add_argument("--checkpoint", required=True, help="a trained model's .ckpt file")
+        parser.add_argument("--style", default=None, help="one style for all songs (default: the checkpoint's "
+                            "genres in turn, one per original song)")  # fmt: skip
+        parser.add_argument("--all-styles", action="store_true", help="dance every song in every genre of the "
+                            "checkpoint (a row each) and print a summary line per genre")  # fmt: skip
+        parser.add_argument("--floor", type=float, default=None, help="floor height in metres (default: the run's)")
+        parser.add_argument(
+            "--train-speed",
+            type=float,
+            default=None,
+            help="the training data's mean joint speed in m/s (default: computed from its data)",
+        )
+        parser.add_argument("--json", type=Path, default=None, help="write every figure to this JSON file")
+        parser.add_argument("--motions", type=Path, default=None,
+                            help="also write each dance (T, 151) as <folder>/<song>.npy (<song>__<style>.npy with "
+                            "--all-styles), e.g. to render it later")  # fmt: skip
+        args = parser.parse_intermixed_args(argv)
+        run_benchmark(
+            args.folder, args.checkpoint, args.overrides, style=args.style, all_styles=args.all_styles,
+            floor_m=args.floor, train_speed=args.train_speed, json_path=args.json, motions_dir=args.motions,
+        )  # fmt: skip
+        return 0
+    except DgsdpError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
