@@ -19,7 +19,7 @@ __version__ = "0.1.0"
 
 _API = {
     "DanceGenerator": "dgsdp.generation.pipeline",
-    "Dance": "dgsdp.generation.pipeline",
+    "Dance": "dgsdp.generation.dance",
     "load_model": "dgsdp.trained",
     "TrainedModel": "dgsdp.trained",
     "SamplingSettings": "dgsdp.sampling",

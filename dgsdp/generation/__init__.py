@@ -1,5 +1,6 @@
 """Generation: long-form sampling of whole songs, style schedules, and the pipeline behind generate.py."""
 
+from dgsdp.generation.dance import Dance, write_motion
 from dgsdp.generation.longform import (
     ChunkedDenoiser,
     DanceRequest,
@@ -10,15 +11,9 @@ from dgsdp.generation.longform import (
     share_overlaps,
     stitch_windows,
 )
-from dgsdp.generation.pipeline import (
-    Dance,
-    DanceGenerator,
-    EditSettings,
-    StylePlan,
-    find_songs,
-    write_motion,
-)
+from dgsdp.generation.pipeline import DanceGenerator, EditSettings, StylePlan
 from dgsdp.generation.schedule import StyleSpan, is_schedule, parse_schedule, schedule_styles, span_weights
+from dgsdp.generation.songs import GenerateSettings, GenerationReport, SongDancer, dance_songs, find_songs
 from dgsdp.sampling import SamplingSettings
 
 __all__ = [
@@ -27,11 +22,15 @@ __all__ = [
     "DanceGenerator",
     "DanceRequest",
     "EditSettings",
+    "GenerateSettings",
+    "GenerationReport",
     "SamplingSettings",
+    "SongDancer",
     "StylePlan",
     "StyleSpan",
     "WindowLayout",
     "cut_windows",
+    "dance_songs",
     "find_songs",
     "is_schedule",
     "parse_schedule",

@@ -9,6 +9,7 @@ writes one motion as an AIST++ pickle, a BVH, a video and the raw 151-d array.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import os
 from collections.abc import Sequence
@@ -20,19 +21,17 @@ import numpy as np
 import torch
 
 from dgsdp.audio import AudioEncoder, FeatureCache, audio_duration_seconds
-from dgsdp.audio.io import AUDIO_SUFFIXES
-from dgsdp.editing import build_mask, check_task, place_known
+from dgsdp.editing import build_mask, check_task, load_motion_file, place_known
 from dgsdp.errors import AudioError, ConfigError
 from dgsdp.generation.beatsync import BeatSync, song_beats, sync_to_beats
+from dgsdp.generation.dance import Dance
 from dgsdp.generation.longform import DanceRequest, WindowLayout, sample_items
 from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styles
-from dgsdp.motion import POSE_DIM, FloorCleanup, clean_motion, pose_to_joints, unpack_pose
-from dgsdp.motion.rotation import matrix_to_axis_angle
+from dgsdp.motion import FloorCleanup, clean_motion
 from dgsdp.resources import home
 from dgsdp.sampling import SamplingSettings
 from dgsdp.trained import TrainedModel, load_model
 from dgsdp.utils.device import resolve_device
-from dgsdp.utils.io import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +42,7 @@ class EditSettings:
 
     task: str = "none"
     motion: torch.Tensor | None = None
+    motion_file: str | None = None  # read (at the model's frame rate) when ``motion`` is not given
     seed_frames: int = 30
     end_frames: int = 30
     inpaint_fraction: float = 0.7
@@ -53,73 +53,12 @@ class EditSettings:
 
 
 @dataclass
-class Dance:
-    """The dances made to one song: ``motion`` (num_samples, T, 151), unnormalised, z-up, at ``fps``, on the run's
-    floor at ``floor_height`` (z-up metres). ``joints`` and :meth:`smpl` give them as joint positions and SMPL
-    parameters; :meth:`save` writes the files generate.py writes."""
-
-    motion: torch.Tensor
-    fps: int
-    floor_height: float = 0.0
-    song: Path | None = None
-    style: str | None = None
-
-    @property
-    def joints(self) -> np.ndarray:
-        """Joint positions (num_samples, T, 24, 3), z-up metres (forward kinematics of the SMPL skeleton)."""
-        return pose_to_joints(self.motion.double()).float().numpy()
-
-    def smpl(self, sample: int = 0) -> dict[str, np.ndarray]:
-        """SMPL parameters of one sample: ``poses`` (T, 72) axis-angle per joint in SMPL order, ``trans`` (T, 3)
-        root translation in metres (both z-up, as the model's vectors)."""
-        parts = unpack_pose(self.motion[sample].double())
-        poses = matrix_to_axis_angle(parts.rotmats).reshape(len(self.motion[sample]), -1)
-        return {"poses": poses.float().numpy(), "trans": parts.root_trans.float().numpy()}
-
-    def save(
-        self, path: str | os.PathLike, formats: Sequence[str] = ("npy", "pkl", "bvh"), sample: int | None = None
-    ) -> list[Path]:
-        """Write the dances as ``path`` + .npy / .pkl / .bvh / .glb / .mp4 (see :func:`write_motion`); with several
-        samples (and ``sample`` None) each gets ``_sample<k>`` appended to its name."""
-        base = Path(path)
-        samples = range(len(self.motion)) if sample is None else [sample]
-        written: list[Path] = []
-        for k in samples:
-            name = base if len(samples) == 1 else base.with_name(f"{base.name}_sample{k}")
-            written += write_motion(
-                self.motion[k], name, fps=self.fps, audio_path=self.song, formats=formats, title=self.style,
-                floor_height=self.floor_height,
-            )  # fmt: skip
-        return written
-
-
-@dataclass
 class StylePlan:
     """A resolved style: one vector (ds,), a schedule (spans, embedded per song length), or none."""
 
     text: str | None
     vector: torch.Tensor | None = None
     spans: list[Any] | None = None
-
-
-def find_songs(music: str | os.PathLike | Sequence[str | os.PathLike] | None) -> list[Path]:
-    """The audio files named by ``music``: a file, a folder (its audio files, sorted) or a list of either."""
-    if music is None or (isinstance(music, str) and not music.strip()):
-        raise ConfigError("give music=<audio file, folder or [list of files]> (wav, mp3, ogg or flac)")
-    items = [music] if isinstance(music, str | os.PathLike) else list(music)
-    songs: list[Path] = []
-    for item in items:
-        p = Path(str(item)).expanduser()
-        if p.is_dir():
-            found = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in AUDIO_SUFFIXES)
-            if not found:
-                raise ConfigError(f"music folder {p} has no audio files ({', '.join(AUDIO_SUFFIXES)})")
-            songs += found
-        else:
-            songs.append(p)  # missing or undecodable files are reported per song
-    if not songs:
-        raise ConfigError("music= names no audio files")
-    return songs
 
 
 class DanceGenerator:
@@ -299,6 +238,8 @@ class DanceGenerator:
         task = check_task(edit.task)
         if task == "none":
             return None, None
+        if edit.motion is None and edit.motion_file:
+            edit = dataclasses.replace(edit, motion=load_motion_file(edit.motion_file, fps=self.fps))
         if edit.motion is None:
             raise ConfigError(
                 f"task={task} needs the given motion: set seed_motion_file (seed_motion, inbetween), "
@@ -425,49 +366,3 @@ class DanceGenerator:
         """Unnormalised motions (num_samples, n_frames, 151); music (n_frames, Da), style (ds,)/(n_frames, ds)."""
         request = DanceRequest(n_frames, music, style, mask, known, num_samples, seed)
         return self.generate_many([request], sampling, progress=progress)[0]
-
-
-def write_motion(
-    motion: torch.Tensor,
-    base: Path,
-    *,
-    fps: float,
-    audio_path: Path | None = None,
-    formats: Sequence[str] = ("pkl", "bvh", "video", "npy"),
-    title: str | None = None,
-    floor_height: float = 0.0,
-) -> list[Path]:
-    """Write one motion (T, 151), unnormalised, as ``base`` + .pkl (AIST++), .bvh, .glb, .mp4/.gif and .npy.
-
-    ``floor_height``: the run's floor (z-up metres, :attr:`DanceGenerator.floor_height`). The data files (.npy, .pkl)
-    keep the model's coordinates (the pickle records the floor height); the files for viewing show the true floor:
-    BVH and GLB are shifted so that it lies at height 0, the video draws its grid at it."""
-    from dgsdp.export import check_formats, render_video, save_aistpp_pkl, save_bvh, save_glb
-
-    if motion.ndim != 2 or motion.shape[-1] != POSE_DIM:
-        raise ValueError(f"write_motion needs one motion (T, {POSE_DIM}), got {tuple(motion.shape)}")
-    formats = check_formats(formats)
-    base.parent.mkdir(parents=True, exist_ok=True)
-    parts = unpack_pose(motion.double())
-    written: list[Path] = []
-    if "npy" in formats:
-        path = base.with_suffix(".npy")
-        with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            np.save(f, motion.numpy().astype(np.float32))
-        written.append(path)
-    if "pkl" in formats:
-        written.append(save_aistpp_pkl(base.with_suffix(".pkl"), parts.rotmats, parts.root_trans, fps, floor_height))
-    if "bvh" in formats:
-        written.append(
-            save_bvh(base.with_suffix(".bvh"), parts.rotmats, parts.root_trans, fps, floor_height=floor_height)
-        )
-    if "glb" in formats:
-        written.append(
-            save_glb(base.with_suffix(".glb"), parts.rotmats, parts.root_trans, fps, floor_height=floor_height)
-        )
-    if "video" in formats:
-        joints = pose_to_joints(motion.double()).float()
-        written.append(
-            render_video(base.with_suffix(".mp4"), joints, fps, audio_path, title=title, floor_z=floor_height)
-        )
-    return written

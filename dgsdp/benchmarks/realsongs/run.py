@@ -55,9 +55,10 @@ def run_benchmark(
     import torch
 
     from dgsdp.cli.config import compose_config
-    from dgsdp.cli.generate import GenerateJob
+    from dgsdp.cli.generate import generate_settings
+    from dgsdp.generation import find_songs, write_motion
     from dgsdp.generation.beatsync import song_beats
-    from dgsdp.generation.pipeline import find_songs, write_motion
+    from dgsdp.generation.songs import SongDancer
     from dgsdp.motion import pose_to_joints
 
     out = sys.stdout if out is None else out
@@ -65,7 +66,7 @@ def run_benchmark(
         raise ConfigError(f"{folder} is not a folder of songs (build one with: python -m {__spec__.name} prepare DIR)")
     cfg = compose_config("generate", [f"checkpoint={checkpoint}", *overrides])
     songs = find_songs(str(folder))
-    job = GenerateJob.from_config(cfg)
+    job = SongDancer.from_settings(generate_settings(cfg))
     generator, sampling = job.generator, job.sampling
     window = min(sampling.window_frames or generator.window, generator.model.denoiser.seq_len)
     stride = min(sampling.stride_frames, window)
