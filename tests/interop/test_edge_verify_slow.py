@@ -52,3 +52,16 @@ def test_verify_against_edges_code(tmp_path, capsys, feature_dim):
     assert code == 0
     # a tolerance no float32 computation meets makes it fail: the check can fail
     assert main(["verify", "--edge-src", EDGE_SRC, str(ckpt), "--windows", "2", "--tolerance", "1e-12"]) == 1
+
+
+def test_speed_benchmark_against_edges_code(capsys):
+    pytest.importorskip("einops")
+    from dgsdp.benchmarks.edge import main as bench
+
+    best = bench(["--edge-src", EDGE_SRC, "--size", "small", "--seconds", "8", "--repeats", "1", "--features", "35"])
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    fields = dict(part.split("=", 1) for part in last.split(" ", 1))
+    assert float(fields["sampling_speedup_vs_edge"]) == pytest.approx(
+        best["edge long_ddim_sample"] / best["dgsdp default"], rel=0.01
+    )
+    assert fields["training_speedup_vs_edge"].startswith("n/a") or float(fields["training_speedup_vs_edge"]) > 0

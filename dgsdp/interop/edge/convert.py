@@ -98,7 +98,7 @@ def build_model(edge: EdgeCheckpoint, weights: str = "ema", n_heads: int = EDGE_
         raise CheckpointError(f"{edge.path}: the normaliser has {edge.scaler.scale.shape[0]} channels, EDGE's 151")
     record = {
         "source": edge.path.name,
-        "sha256": sha256(edge.path),
+        "sha256": sha256(edge.path) if edge.path.is_file() else None,
         "weights": weights,
         "feature_type": arch.feature_type,
         **EDGE_SAMPLING,
