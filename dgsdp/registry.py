@@ -85,12 +85,6 @@ def register(kind: Kind, *aliases: str) -> Callable[[type], type]:
     return deco
 
 
-def registered(kind: Kind) -> dict[str, type]:
-    """The buildable classes of ``kind`` by name: the project's built-in ones (imported now) and the registered."""
-    table = {name: _builtin(kind, name) for name in BUILTINS.get(kind, {})}
-    return {**table, **_REGISTRY.get(kind, {})}
-
-
 def check_plain(value: Any, where: str, source: Source) -> None:
     """Refuse anything in a stored config that is not plain data (str, number, bool, None, list, dict)."""
     error = CheckpointError if source == "checkpoint" else ConfigError

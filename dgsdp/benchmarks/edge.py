@@ -20,13 +20,12 @@ import time
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 
 from dgsdp.cli.config import compose_config
 from dgsdp.generation import DanceGenerator, WindowLayout
 from dgsdp.interop.edge.checkpoint import EdgeCheckpoint, EdgeScaler
 from dgsdp.interop.edge.convert import build_model
-from dgsdp.interop.edge.verify import edge_code
+from dgsdp.interop.edge.verify import edge_code, edge_model
 from dgsdp.sampling import SamplingSettings
 
 SIZES = {"paper": {"d": 512, "layers": 8, "ff": 1024}, "small": {"d": 64, "layers": 2, "ff": 128}}
@@ -46,14 +45,7 @@ def run(edge_src: str, *, size: str, features: int, seconds: float, repeats: int
     with edge_code(edge_src) as (edge, stand_ins):
         torch.manual_seed(0)
         s = SIZES[size]
-        theirs = edge["DanceDecoder"](
-            nfeats=151, seq_len=WINDOW, latent_dim=s["d"], ff_size=s["ff"], num_layers=s["layers"], num_heads=8,
-            dropout=0.1, cond_feature_dim=features, activation=F.gelu,
-        ).eval()  # fmt: skip
-        diffusion = edge["GaussianDiffusion"](
-            theirs, WINDOW, 151, None, schedule="cosine", n_timestep=1000, predict_epsilon=False, loss_type="l2",
-            use_p2=False, cond_drop_prob=0.25, guidance_weight=2,
-        ).eval()  # fmt: skip
+        theirs, diffusion = edge_model(edge, WINDOW, s["d"], s["ff"], s["layers"], 8, features, 2.0)
         state = theirs.state_dict()
         ours = build_model(EdgeCheckpoint(Path("random"), state, state, identity_scaler()))
         generator = DanceGenerator(ours, cache_dir=tempfile.mkdtemp(prefix="dgsdp-bench-"))

@@ -94,10 +94,8 @@ class GaussianDiffusion(nn.Module):
             self.sqrt_one_minus_alpha_bar, t, x_t.ndim
         )
 
-    def clamp(self, x0: torch.Tensor, bound: float | None = None) -> torch.Tensor:
-        """x0 clamped to [-bound, bound]; ``bound`` None = the process's own (``clip_x0``)."""
-        bound = self.x0_bound if bound is None else bound
-        return x0 if bound is None else x0.clamp(-bound, bound)
+    def clamp(self, x0: torch.Tensor) -> torch.Tensor:
+        return x0 if self.x0_bound is None else x0.clamp(-self.x0_bound, self.x0_bound)
 
     def ddpm_step(
         self,

@@ -36,12 +36,13 @@ def clip_requests(
         s = clip_seed(seed, trial, clip.index)
         genre = torch.tensor([clip.seq.genre_index], device=generator.device)
         style = model.style_for(genre, random=False)
-        music = clip.music()
-        if per_window and music is not None and clip.music_file is not None:
-            windows = generator.music_windows(
+        if per_window and clip.music_file is not None:
+            music = generator.music_windows(
                 clip.music_file, clip.start, clip.n_frames, sampling, music_id=clip.seq.music_id
-            )
-            music = windows.numpy()
+            ).float()
+        else:
+            music = clip.music()
+            music = None if music is None else torch.from_numpy(np.ascontiguousarray(music)).float()
         mask = known = None
         if variant.task != "none":
             mask = build_mask(
@@ -52,7 +53,7 @@ def clip_requests(
         requests.append(
             DanceRequest(
                 clip.n_frames,
-                music=None if music is None else torch.from_numpy(np.ascontiguousarray(music)).float(),
+                music=music,
                 style=None if style is None else style[0].cpu(),
                 mask=mask,
                 known=known,

@@ -170,7 +170,7 @@ class Sampler:
         else:
             x_u, x_m, x_ms = outs
             x0 = x_u + guidance.music_weight * (x_m - x_u) + guidance.style_weight * (x_ms - x_m)
-        return x0 if self.x0_bound is None else self.diffusion.clamp(x0, self.x0_bound)
+        return x0 if self.x0_bound is None else x0.clamp(-self.x0_bound, self.x0_bound)
 
     def timesteps(self, method: str, steps: int | None, spacing: str = "lambda") -> list[int]:
         """The diffusion steps at which the model is evaluated, descending (the last step goes to x0)."""

@@ -29,10 +29,11 @@ log = logging.getLogger(__name__)
 EDGE_SAMPLING = {"guidance_weight": 2.0, "window_frames": 150, "stride_frames": 75, "fps": 30, "ddim_steps": 50}
 # audio config group and overrides per EDGE feature type
 # (EDGE trained and sampled on features computed per 5 s slice: per_window)
+AUDIO_GROUPS = {"jukebox": "jukebox", "baseline": "librosa"}
 AUDIO_OVERRIDES = {
-    "jukebox": ["audio=jukebox", "audio.per_window=true", "audio.fp16=false"],  # EDGE: float32 activations
+    "jukebox": ["audio.per_window=true", "audio.fp16=false"],  # EDGE: float32 activations
     "baseline": [
-        "audio=librosa", "audio.loudness_lufs=null", "audio.standardize=none", "audio.mfcc_fmax_hz=null",
+        "audio.loudness_lufs=null", "audio.standardize=none", "audio.mfcc_fmax_hz=null",
         "audio.per_window=true",
     ],
 }  # fmt: skip
@@ -42,7 +43,7 @@ FLOOR_SAMPLES = 8
 
 def edge_overrides(arch: EdgeArchitecture, n_heads: int = EDGE_HEADS) -> list[str]:
     """The train.py overrides that build this EDGE model: ``experiment=edge``, its audio, and its sizes."""
-    overrides = ["experiment=edge", *AUDIO_OVERRIDES[arch.feature_type]]
+    overrides = ["experiment=edge", f"audio={AUDIO_GROUPS[arch.feature_type]}", *AUDIO_OVERRIDES[arch.feature_type]]
     sizes = {"d_model": arch.d_model, "n_layers": arch.n_layers, "ff_dim": arch.ff_dim, "seq_len": arch.seq_len}
     overrides += [f"model.{k}={v}" for k, v in sizes.items() if PAPER_SIZE[k] != v]
     if n_heads != EDGE_HEADS:
@@ -66,7 +67,7 @@ def edge_run_spec(arch: EdgeArchitecture, n_heads: int = EDGE_HEADS, record: dic
     with open_dict(cfg):
         cfg.edge_import = record or {}
     audio_encoder = build(cfg.audio, "audio", where="audio")
-    groups = {"experiment": "edge", "audio": overrides[1].split("=")[1], "style": "none", "model": "paper"}
+    groups = {"experiment": "edge", "audio": AUDIO_GROUPS[arch.feature_type], "style": "none", "model": "paper"}
     return RunSpec.from_config(cfg, audio_encoder=audio_encoder, style_embedder=None, style_bank_size=0, groups=groups)
 
 

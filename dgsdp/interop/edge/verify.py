@@ -103,6 +103,45 @@ def _max_diff(a: torch.Tensor, b: torch.Tensor) -> float:
     return float((a.double() - b.double()).abs().max())
 
 
+def edge_model(
+    edge_classes: dict[str, Any],
+    seq_len: int,
+    width: int,
+    ff_dim: int,
+    n_layers: int,
+    n_heads: int,
+    feature_dim: int,
+    guidance: float,
+) -> tuple[torch.nn.Module, torch.nn.Module]:
+    """EDGE's own DanceDecoder (random weights, eval mode) and the GaussianDiffusion around it, built as EDGE.py
+    builds them (classes from :func:`edge_code`)."""
+    decoder = edge_classes["DanceDecoder"](
+        nfeats=151,
+        seq_len=seq_len,
+        latent_dim=width,
+        ff_size=ff_dim,
+        num_layers=n_layers,
+        num_heads=n_heads,
+        dropout=0.1,
+        cond_feature_dim=feature_dim,
+        activation=F.gelu,
+    ).eval()
+    diffusion = edge_classes["GaussianDiffusion"](
+        decoder,
+        seq_len,
+        151,
+        None,
+        schedule="cosine",
+        n_timestep=1000,
+        predict_epsilon=False,
+        loss_type="l2",
+        use_p2=False,
+        cond_drop_prob=0.25,
+        guidance_weight=guidance,
+    ).eval()
+    return decoder, diffusion  # fmt: skip
+
+
 def verify(
     edge_src: str | Path,
     edge_ckpt: str | Path,
@@ -130,16 +169,11 @@ def verify(
     with edge_code(edge_src) as (edge_classes, stand_ins):
         if stand_ins:
             log(f"not installed, replaced by stand-ins (used by EDGE's rendering only): {', '.join(stand_ins)}")
-        theirs = edge_classes["DanceDecoder"](
-            nfeats=151, seq_len=arch.seq_len, latent_dim=arch.d_model, ff_size=arch.ff_dim, num_layers=arch.n_layers,
-            num_heads=n_heads, dropout=0.1, cond_feature_dim=arch.feature_dim, activation=F.gelu,
+        theirs, diffusion = edge_model(
+            edge_classes, arch.seq_len, arch.d_model, arch.ff_dim, arch.n_layers, n_heads, arch.feature_dim,
+            settings.guidance.music,
         )  # fmt: skip
         theirs.load_state_dict(state)
-        theirs.eval()
-        diffusion = edge_classes["GaussianDiffusion"](
-            theirs, arch.seq_len, 151, None, schedule="cosine", n_timestep=1000, predict_epsilon=False,
-            loss_type="l2", use_p2=False, cond_drop_prob=0.25, guidance_weight=settings.guidance.music,
-        ).eval()  # fmt: skip
         scaler = edge_classes["MinMaxScaler"]((-1, 1), clip=True)
         for name, value in (("scale_", edge.scaler.scale), ("min_", edge.scaler.min), ("data_min_", edge.scaler.data_min),
                             ("data_max_", edge.scaler.data_max), ("data_range_", edge.scaler.data_range)):  # fmt: skip
