@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import abc
 import math
+import warnings
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import librosa
 import numpy as np
 
+from dgsdp.audio.tempo import tempo_from_music_id
 from dgsdp.errors import AudioError
 
 
@@ -61,6 +63,28 @@ def resample_frames(features: np.ndarray, rate_hz: float, fps: float, res_type: 
     return np.ascontiguousarray(out.T, dtype=np.float32)
 
 
+BEAT_PHASE_DIM = 2
+
+
+def beat_phase_columns(beats: np.ndarray, n_frames: int) -> np.ndarray:
+    """``(n_frames, 2)``: sin and cos of 2 pi x the phase of each frame within its beat (0 on a beat frame).
+
+    Between two beats the phase rises linearly from 0 to 1; before the first and after the last beat it runs on
+    at the nearest beat interval. With fewer than two beats there is no tempo: both columns are 0.
+    """
+    beats = np.unique(np.asarray(beats, dtype=np.float64).reshape(-1))
+    out = np.zeros((int(n_frames), BEAT_PHASE_DIM), dtype=np.float32)
+    if beats.size < 2 or n_frames == 0:
+        return out
+    t = np.arange(int(n_frames), dtype=np.float64)
+    k = np.clip(np.searchsorted(beats, t, side="right") - 1, 0, beats.size - 2)
+    phase = (t - beats[k]) / (beats[k + 1] - beats[k])  # < 0 before the first beat, > 1 after the last
+    angle = 2.0 * np.pi * phase
+    out[:, 0] = np.sin(angle)
+    out[:, 1] = np.cos(angle)
+    return out
+
+
 def _mono(waveform: np.ndarray) -> np.ndarray:
     """A finite mono float32 waveform from ``(samples,)`` or ``(channels, samples)``, or an AudioError."""
     waveform = np.asarray(waveform, dtype=np.float32)
@@ -91,10 +115,39 @@ class AudioEncoder(abc.ABC):
     # EDGE's procedure (its test.py and its training data): every generation window gets features computed from
     # its own audio alone (:meth:`encode_windows`), not cut from the whole song's. Set by ``audio.per_window``.
     per_window: bool = False
+    # Two more columns after the encoder's own: sin and cos of the phase within the beat (``audio.beat_phase``,
+    # :func:`beat_phase_columns`); the beats are librosa's tracker's, the ones BAS and beat sync use.
+    beat_phase: bool = False
+
+    @property
+    def output_dim(self) -> int:
+        """Width of the rows :meth:`encode` returns: ``feature_dim`` (the encoder's own), plus 2 with beat_phase."""
+        return int(self.feature_dim) + (BEAT_PHASE_DIM if self.beat_phase else 0)
 
     @abc.abstractmethod
     def settings(self) -> dict[str, Any]:
         """Every setting that changes the output (JSON-serialisable), used for cache keys."""
+
+    def output_settings(self) -> dict[str, Any]:
+        """:meth:`settings` plus the columns added here (the feature cache's and the data's key)."""
+        return {**self.settings(), "beat_phase": True} if self.beat_phase else self.settings()
+
+    def beat_frames(self, waveform: np.ndarray, music_id: str | None, features: np.ndarray) -> np.ndarray:
+        """Beat frame indices of mono audio at ``self.sample_rate`` (``features``: this encoder's own rows).
+
+        librosa's tracker on the onset envelope at the motion frame rate, with the AIST++ tempo as prior when the
+        music id names one; encoders that track beats themselves return theirs.
+        """
+        hop = self.sample_rate // self.fps
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            envelope = librosa.onset.onset_strength(y=waveform, sr=self.sample_rate, hop_length=hop)
+            bpm = tempo_from_music_id(music_id)
+            kwargs = {} if bpm is None else {"start_bpm": bpm}
+            _, beats = librosa.beat.beat_track(
+                onset_envelope=envelope, sr=self.sample_rate, hop_length=hop, tightness=100.0, **kwargs
+            )
+        return np.asarray(beats, dtype=np.int64)
 
     @abc.abstractmethod
     def _encode(self, waveform: np.ndarray, music_id: str | None) -> np.ndarray:
@@ -114,7 +167,7 @@ class AudioEncoder(abc.ABC):
         n_frames: int | None = None,
         music_id: str | None = None,
     ) -> np.ndarray:
-        """Features ``(n_frames, feature_dim)`` float32; row ``i`` covers time ``i / fps`` s.
+        """Features ``(n_frames, output_dim)`` float32; row ``i`` covers time ``i / fps`` s.
 
         ``waveform`` is ``(samples,)`` or ``(channels, samples)`` at ``sample_rate`` Hz (resampled and
         down-mixed here). ``n_frames`` defaults to ``floor(duration_seconds * fps)``; the features are
@@ -139,6 +192,9 @@ class AudioEncoder(abc.ABC):
             raise RuntimeError(
                 f"{type(self).__name__} returned shape {features.shape}, expected (T, {self.feature_dim})"
             )
+        if self.beat_phase:
+            beats = self.beat_frames(waveform, music_id, features)
+            features = np.concatenate([features, beat_phase_columns(beats, features.shape[0])], axis=1)
         # First the song's own length, so that padding repeats the last frame inside the audio.
         features = fit_frames(fit_frames(features, song_frames), int(n_frames))
         return np.ascontiguousarray(features, dtype=np.float32)
@@ -151,7 +207,7 @@ class AudioEncoder(abc.ABC):
         window_frames: int,
         music_id: str | None = None,
     ) -> np.ndarray:
-        """Features ``(len(starts), window_frames, feature_dim)``: window k's computed from its own audio alone,
+        """Features ``(len(starts), window_frames, output_dim)``: window k's computed from its own audio alone,
         the ``window_frames / fps`` seconds from frame ``starts[k]`` on, as EDGE's test.py encodes each 5 s slice
         file of a song (slices every 2.5 s). Audio past the end of the song is silence."""
         waveform = _mono(waveform)

@@ -11,6 +11,7 @@ import os
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -34,7 +35,7 @@ class FeatureCache:
     @staticmethod
     def namespace(encoder: AudioEncoder) -> str:
         """Folder name of an encoder's entries: a changed setting gives a new folder (a miss)."""
-        return f"{encoder.name}-{stable_hash(encoder.settings())}"
+        return f"{encoder.name}-{stable_hash(encoder.output_settings())}"
 
     def disk_cache(self, encoder: AudioEncoder) -> DiskCache:
         ns = self.namespace(encoder)
@@ -70,11 +71,7 @@ class FeatureCache:
         key = self.key(encoder, audio_path, music_id)
 
         def compute() -> dict[str, np.ndarray]:
-            waveform, rate_hz = load_audio(audio_path, sample_rate=encoder.sample_rate, mono=True)
-            try:
-                return {FEATURES_KEY: encoder.encode(waveform, rate_hz, music_id=music_id)}
-            except AudioError as e:  # the encoder does not know the file: name it
-                raise AudioError(f"{audio_path}: {e}") from e
+            return {FEATURES_KEY: _encode_file(audio_path, encoder.sample_rate, encoder.encode, music_id=music_id)}
 
         mapped = self._mapped.get((cache.dir.name, key))
         if mapped is None:
@@ -101,13 +98,21 @@ class FeatureCache:
         key = f"{self.key(encoder, audio_path, music_id)}-windows-{layout}"
 
         def compute() -> dict[str, np.ndarray]:
-            waveform, rate_hz = load_audio(audio_path, sample_rate=encoder.sample_rate, mono=True)
-            try:
-                return {FEATURES_KEY: encoder.encode_windows(waveform, rate_hz, starts, window_frames, music_id)}
-            except AudioError as e:
-                raise AudioError(f"{audio_path}: {e}") from e
+            encode = encoder.encode_windows
+            return {
+                FEATURES_KEY: _encode_file(audio_path, encoder.sample_rate, encode, starts, window_frames, music_id)
+            }
 
         return cache.get_or_compute(key, compute, required=(FEATURES_KEY,))[FEATURES_KEY].astype(np.float32)
+
+
+def _encode_file(audio_path: str | os.PathLike, sample_rate: int, encode: Any, *args: Any, **kwargs: Any) -> np.ndarray:
+    """``encode(waveform, rate, *args, **kwargs)`` of a file read at ``sample_rate``; its errors name the file."""
+    waveform, rate_hz = load_audio(audio_path, sample_rate=sample_rate, mono=True)
+    try:
+        return encode(waveform, rate_hz, *args, **kwargs)
+    except AudioError as e:  # the encoder does not know the file: name it
+        raise AudioError(f"{audio_path}: {e}") from e
 
 
 @dataclass

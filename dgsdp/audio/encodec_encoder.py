@@ -47,6 +47,7 @@ class EncodecEncoder(AudioEncoder):
         feature_dim: int = 128,
         sample_rate: int = 24000,
         per_window: bool = False,
+        beat_phase: bool = False,
     ) -> None:
         if chunk_seconds is not None and chunk_seconds <= 0:
             raise ConfigError(f"audio.chunk_seconds must be > 0 or null, got {chunk_seconds}")
@@ -58,6 +59,7 @@ class EncodecEncoder(AudioEncoder):
         self.context_seconds = float(context_seconds)
         self.resample_type = str(resample_type)
         self.per_window = bool(per_window)  # not a settings() key: whole-song features are the same
+        self.beat_phase = bool(beat_phase)
         # Until the model is loaded these describe the default 24 kHz model; loading overwrites them.
         self.feature_dim = int(feature_dim)
         self.sample_rate = int(sample_rate)

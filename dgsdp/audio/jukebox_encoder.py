@@ -159,6 +159,7 @@ class JukeboxEncoder(AudioEncoder):
         vqvae_overrides: Mapping[str, Any] | None = None,
         prior_overrides: Mapping[str, Any] | None = None,
         per_window: bool = False,
+        beat_phase: bool = False,
     ) -> None:
         """``vqvae_overrides`` / ``prior_overrides`` change the package's ``vqvae`` / ``prior_5b``
         hyper-parameters (small models in tests); leave them empty for the released 5B weights."""
@@ -177,6 +178,7 @@ class JukeboxEncoder(AudioEncoder):
         self.vqvae_overrides = dict(vqvae_overrides or {})
         self.prior_overrides = dict(prior_overrides or {})
         self.per_window = bool(per_window)  # not a settings() key: whole-song features are the same
+        self.beat_phase = bool(beat_phase)
         self._vqvae: nn.Module | None = None
         self._prior: nn.Module | None = None
         self._source = "pretrained-5b"

@@ -71,6 +71,7 @@ class LibrosaEncoder(AudioEncoder):
         standardize: str = "mean_std",
         mfcc_fmax_hz: float | None = 3500.0,
         per_window: bool = False,
+        beat_phase: bool = False,
     ) -> None:
         if sample_rate % hop_length != 0 or sample_rate // hop_length != self.fps:
             raise ValueError(f"sample_rate / hop_length must equal {self.fps} FPS, got {sample_rate} / {hop_length}")
@@ -91,6 +92,7 @@ class LibrosaEncoder(AudioEncoder):
         self.mfcc_fmax_hz = None if mfcc_fmax_hz is None else float(mfcc_fmax_hz)
         self.feature_dim = 1 + self.n_mfcc + self.n_chroma + 2
         self.per_window = bool(per_window)  # not a settings() key: whole-song features are the same
+        self.beat_phase = bool(beat_phase)
 
     def settings(self) -> dict[str, Any]:
         return {
@@ -113,6 +115,10 @@ class LibrosaEncoder(AudioEncoder):
     def music_id_key(self, music_id: str | None) -> str:
         bpm = self.start_bpm(music_id)
         return "" if bpm is None else f"bpm{bpm:g}"
+
+    def beat_frames(self, waveform: np.ndarray, music_id: str | None, features: np.ndarray) -> np.ndarray:
+        """The beats of the beat column: the phase then agrees with the beats these features flag."""
+        return np.flatnonzero(features[:, BEAT_COLUMN])
 
     def _encode(self, waveform: np.ndarray, music_id: str | None) -> np.ndarray:
         sr, hop = self.sample_rate, self.hop_length

@@ -343,7 +343,7 @@ class DanceDataModule(L.LightningDataModule):
 
     @property
     def audio_dim(self) -> int:
-        return 0 if self.audio_encoder is None else self.audio_encoder.feature_dim
+        return 0 if self.audio_encoder is None else self.audio_encoder.output_dim
 
     def settings(self) -> dict[str, Any]:
         """What shapes the data, for run records and cache keys."""
@@ -354,7 +354,7 @@ class DanceDataModule(L.LightningDataModule):
             "train_stride": self.train_stride,
             "test_stride": self.test_stride,
             "splits": self.splits,
-            "audio": None if self.audio_encoder is None else self.audio_encoder.settings(),
+            "audio": None if self.audio_encoder is None else self.audio_encoder.output_settings(),
         }
 
     def prepare_data(self) -> None:

@@ -43,19 +43,23 @@ def kinematic_speed(joints: np.ndarray, fps: float = 60, sigma_frames: float | N
 
 
 def beat_alignment_from_beats(
-    motion_beat_frames: np.ndarray, music_beat_frames: np.ndarray, fps: float = 60, variant: str = "bailando"
+    motion_beat_frames: np.ndarray,
+    music_beat_frames: np.ndarray,
+    fps: float = 60,
+    variant: str = "bailando",
+    sigma_frames: float | None = None,
 ) -> float:
     """Beat alignment score from beat frame indices at ``fps``.
 
     ``"bailando"`` (default): mean over music beats b of exp(-min_m (m - b)^2 / (2 sigma^2));
     ``"fact"``: the same averaged over motion beats m with the nearest music beat. sigma is 3 frames
-    at 60 FPS, scaled by fps / 60. Nothing to average over (no beats of the averaged kind) or nothing
+    at 60 FPS, scaled by fps / 60, unless ``sigma_frames`` gives it in frames. Nothing to average over (no beats of the averaged kind) or nothing
     to match against gives 0.0 with a MetricWarning.
     """
     check_choice(variant, BEAT_VARIANTS, "variant")
     motion = np.asarray(motion_beat_frames, dtype=np.float64).reshape(-1)
     music = np.asarray(music_beat_frames, dtype=np.float64).reshape(-1)
-    sigma = SCORE_SIGMA_FRAMES_60FPS * fps / REFERENCE_FPS
+    sigma = SCORE_SIGMA_FRAMES_60FPS * fps / REFERENCE_FPS if sigma_frames is None else float(sigma_frames)
     queries, targets = (music, motion) if variant == "bailando" else (motion, music)
     if queries.size == 0 or targets.size == 0:
         warnings.warn(
@@ -83,8 +87,11 @@ def beat_alignment(joints: np.ndarray, music_beats: np.ndarray, fps: float = 60,
 
 
 def music_beats_from_features(features35: np.ndarray) -> np.ndarray:
-    """Frame indices whose beat flag (column 34 of the 35-d librosa features (T, 35)) is non-zero."""
+    """Frame indices whose beat flag (column 34 of the 35-d librosa features (T, 35), or (T, 37) with the two
+    beat-phase columns after them: ``audio.beat_phase``) is non-zero."""
     arr = np.asarray(features35)
-    if arr.ndim != 2 or arr.shape[1] != BEAT_COLUMN + 1:
-        raise ValueError(f"features35 must have shape (T, {BEAT_COLUMN + 1}); got {arr.shape}.")
+    if arr.ndim != 2 or arr.shape[1] not in (BEAT_COLUMN + 1, BEAT_COLUMN + 3):
+        raise ValueError(
+            f"features35 must have shape (T, {BEAT_COLUMN + 1}) or (T, {BEAT_COLUMN + 3}); got {arr.shape}."
+        )
     return np.nonzero(arr[:, BEAT_COLUMN])[0].astype(np.int64)

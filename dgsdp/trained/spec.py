@@ -122,9 +122,9 @@ class RunSpec:
             raise CheckpointError("the run does not say which audio encoder it was trained with (audio config)")
         extra = {"device": device} if device is not None and "device" in self.audio else {}
         encoder = build(self.audio, "audio", where="audio", source=source, **extra)
-        if int(encoder.feature_dim) != self.conditioning.audio_dim:
+        if encoder.output_dim != self.conditioning.audio_dim:
             raise CheckpointError(
-                f"the run's audio encoder gives {encoder.feature_dim}-d features, but the model was trained on "
+                f"the run's audio encoder gives {encoder.output_dim}-d features, but the model was trained on "
                 f"{self.conditioning.audio_dim}-d features"
             )
         return encoder
@@ -246,7 +246,7 @@ class RunSpec:
             audio=audio if audio_encoder is not None else None,
             style=style if style_embedder is not None and style_dim else None,
             conditioning=Conditioning(
-                audio_dim=0 if audio_encoder is None else int(audio_encoder.feature_dim),
+                audio_dim=0 if audio_encoder is None else audio_encoder.output_dim,
                 style_kind="none" if style_embedder is None else str(style_embedder.kind),
                 style_dim=style_dim,
                 style_bank_size=int(style_bank_size) if style_dim else 0,
