@@ -7,18 +7,20 @@ reported at the end while the other songs are still written. The exit code is no
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from pathlib import Path
+from typing import Any
 
 import hydra
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from dgsdp.cli.config import GENERATE_CONFIG_NAME, as_list, generate_configs
 from dgsdp.cli.runtime import run_main
 from dgsdp.editing import check_task
 from dgsdp.errors import ConfigError
 from dgsdp.export import check_formats
-from dgsdp.generation.pipeline import EditSettings
+from dgsdp.generation.pipeline import EditSettings, Finishing
 from dgsdp.generation.songs import GenerateSettings, GenerationReport, dance_songs
 from dgsdp.sampling import SamplingSettings
 
@@ -50,6 +52,27 @@ def edit_settings(cfg: DictConfig) -> EditSettings:
     )
 
 
+def finishing_settings(node: Any) -> Finishing:
+    """The ``finishing`` node of a generate config as checked :class:`Finishing` limits (defaults for absent keys)."""
+    if node is None:
+        return Finishing()
+    values = OmegaConf.to_container(node) if isinstance(node, DictConfig) else node
+    if not isinstance(values, dict):
+        raise ConfigError(f"finishing must be a mapping of limits, got {values!r}")
+    known = {f.name for f in dataclasses.fields(Finishing)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ConfigError(f"finishing has no key {', '.join(unknown)}; its keys: {', '.join(sorted(known))}")
+    for key, value in values.items():
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int | float)):
+            raise ConfigError(f"finishing.{key} must be a number (or null to lift the limit), got {value!r}")
+    if values.get("beat_sync_reach", 0.25) is None:
+        raise ConfigError(
+            "finishing.beat_sync_reach must be a number of beats; beat_sync=false keeps the model's timing"
+        )
+    return Finishing(**values)
+
+
 def generate_settings(cfg: DictConfig) -> GenerateSettings:
     """A composed ``generate`` config as checked plain settings (every problem with it before any work)."""
     if not cfg.get("checkpoint"):
@@ -76,6 +99,7 @@ def generate_settings(cfg: DictConfig) -> GenerateSettings:
         max_song_seconds=None if cfg.max_song_seconds is None else float(cfg.max_song_seconds),
         cleanup=cfg.get("cleanup", True),
         beat_sync=cfg.get("beat_sync", True),
+        finishing=finishing_settings(cfg.get("finishing")),
         seconds=None if cfg.seconds is None else float(cfg.seconds),
         blend_seconds=float(cfg.schedule_blend_seconds),
         num_samples=int(cfg.num_samples),

@@ -11,7 +11,7 @@ from dgsdp.generation.longform import (
     share_overlaps,
     stitch_windows,
 )
-from dgsdp.generation.pipeline import DanceGenerator, EditSettings, StylePlan
+from dgsdp.generation.pipeline import DanceGenerator, EditSettings, Finishing, StylePlan
 from dgsdp.generation.schedule import StyleSpan, is_schedule, parse_schedule, schedule_styles, span_weights
 from dgsdp.generation.songs import GenerateSettings, GenerationReport, SongDancer, dance_songs, find_songs
 from dgsdp.sampling import SamplingSettings
@@ -22,6 +22,7 @@ __all__ = [
     "DanceGenerator",
     "DanceRequest",
     "EditSettings",
+    "Finishing",
     "GenerateSettings",
     "GenerationReport",
     "SamplingSettings",

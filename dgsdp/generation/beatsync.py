@@ -170,19 +170,30 @@ def sync_to_beats(
     *,
     mask: torch.Tensor | None = None,
     settings: BeatSync | None = None,
+    stats: list[dict[str, float]] | None = None,
 ) -> torch.Tensor:
     """Unnormalised motion (T, 151) or (S, T, 151) at ``fps`` and music beat frames (B,) of the same frame rate ->
     the motion retimed so that its speed dips fall on the beats (see the module docstring). With an editing
-    ``mask`` the motion is returned unchanged."""
+    ``mask`` the motion is returned unchanged. ``stats``: a list that gets one dict per motion: ``beats``,
+    ``anchored_beats``, and the mean and largest retiming offset ``mean_shift_ms``, ``max_shift_ms`` (how far in
+    time a frame's pose moved)."""
     if motion.shape[-1] != POSE_DIM or motion.ndim not in (2, 3):
         raise ValueError(f"sync_to_beats needs motion (T, {POSE_DIM}) or (S, T, {POSE_DIM}), got {tuple(motion.shape)}")
-    if mask is not None or motion.shape[-2] < 3:
-        return motion
     batch = motion if motion.ndim == 3 else motion[None]
+    unchanged = {"beats": len(music_beats), "anchored_beats": 0, "mean_shift_ms": 0.0, "max_shift_ms": 0.0}
+    if mask is not None or motion.shape[-2] < 3:
+        if stats is not None:
+            stats.extend(dict(unchanged) for _ in batch)
+        return motion
     out = []
     for x in batch:
         speed = kinematic_speed(pose_to_joints(x.detach().double().cpu()).numpy(), fps)
         beats, sources = beat_anchors(speed, np.asarray(music_beats), settings)
-        out.append(resample(x, warp_times(len(x), beats, sources)) if len(beats) else x)
+        times = warp_times(len(x), beats, sources)
+        out.append(resample(x, times) if len(beats) else x)
+        if stats is not None:
+            shift_ms = np.abs(times - np.arange(len(x))) * 1000.0 / fps
+            stats.append({**unchanged, "anchored_beats": len(beats), "mean_shift_ms": float(shift_ms.mean()),
+                          "max_shift_ms": float(shift_ms.max())})  # fmt: skip
     result = torch.stack(out)
     return result if motion.ndim == 3 else result[0]

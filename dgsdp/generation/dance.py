@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -20,13 +20,17 @@ from dgsdp.utils.io import atomic_path
 class Dance:
     """The dances made to one song: ``motion`` (num_samples, T, 151), unnormalised, z-up, at ``fps``, on the run's
     floor at ``floor_height`` (z-up metres). ``joints`` and :meth:`smpl` give them as joint positions and SMPL
-    parameters; :meth:`save` writes the files generate.py writes."""
+    parameters; :meth:`save` writes the files generate.py writes. ``raw``: the model's own output before the
+    finishing (beat sync and floor cleanup; the same as ``motion`` without them), and ``finishing``: one dict per
+    sample of what each finishing step changed (:meth:`DanceGenerator.finish`)."""
 
     motion: torch.Tensor
     fps: int
     floor_height: float = 0.0
     song: Path | None = None
     style: str | None = None
+    raw: torch.Tensor | None = None
+    finishing: list[dict[str, float]] = field(default_factory=list)
 
     @property
     def joints(self) -> np.ndarray:

@@ -52,6 +52,33 @@ class EditSettings:
     keyframe_seconds: Sequence[float] | None = None
 
 
+@dataclass(frozen=True)
+class Finishing:
+    """The finishing's limits (generate.py's ``finishing`` keys, the studio's options): a model trained on real
+    spins, flips and long jumps lifts them (None). ``floor()`` and ``beat_sync()`` give the full settings of
+    :func:`dgsdp.motion.clean_motion` and :func:`dgsdp.generation.beatsync.sync_to_beats`."""
+
+    max_turn_rate: float | None = FloorCleanup.max_turn_rate  # rad/s the body's facing may turn
+    max_tilt_rate: float | None = FloorCleanup.max_tilt_rate  # rad/s the body's up axis may tilt
+    max_air_seconds: float | None = FloorCleanup.max_air_seconds  # longest run without foot contact kept as a jump
+    beat_sync_reach: float = BeatSync.max_shift_beats  # how far (in beats) a pause may move to fall on a beat
+
+    def __post_init__(self) -> None:
+        for make in (self.floor, self.beat_sync):  # one clear error for a bad value, before any work
+            try:
+                make()
+            except (TypeError, ValueError) as e:
+                raise ConfigError(f"finishing: {e} (docs/floor.md, docs/beatsync.md)") from None
+
+    def floor(self) -> FloorCleanup:
+        return FloorCleanup(
+            max_turn_rate=self.max_turn_rate, max_tilt_rate=self.max_tilt_rate, max_air_seconds=self.max_air_seconds
+        )
+
+    def beat_sync(self) -> BeatSync:
+        return BeatSync(max_shift_beats=self.beat_sync_reach)
+
+
 @dataclass
 class StylePlan:
     """A resolved style: one vector (ds,), a schedule (spans, embedded per song length), or none."""
@@ -147,22 +174,17 @@ class DanceGenerator:
         (n_windows, window, Da), each computed from the window's own audio."""
         duration = self.check_duration(path)
         limit = None if seconds is None else int(round(seconds * self.fps))
-        if self.audio_encoder is not None and self.audio_encoder.per_window:
+        short = AudioError(f"{path.name} is shorter than one motion frame ({1 / self.fps:.3f} s)")
+        if self.audio_encoder is None or self.audio_encoder.per_window:
             n = int(duration * self.fps) if limit is None else min(int(duration * self.fps), limit)
             if n < 1:
-                raise AudioError(f"{path.name} is shorter than one motion frame ({1 / self.fps:.3f} s)")
-            return self.music_windows(path, 0, n, sampling), n
-        if self.audio_encoder is None:
-            n = int(duration * self.fps)
-            n = n if limit is None else min(n, limit)
-            if n < 1:
-                raise AudioError(f"{path.name} is shorter than one motion frame ({1 / self.fps:.3f} s)")
-            return None, n
+                raise short
+            return (None if self.audio_encoder is None else self.music_windows(path, 0, n, sampling)), n
         feats = self.cache.features_for_file(self.audio_encoder, path, music_id=path.stem)
         if limit is not None:
             feats = feats[:limit]
         if len(feats) < 1:
-            raise AudioError(f"{path.name} is shorter than one motion frame ({1 / self.fps:.3f} s)")
+            raise short
         return torch.from_numpy(np.array(feats)), len(feats)  # a copy: the cached array is read-only
 
     def music_windows(
@@ -324,8 +346,9 @@ class DanceGenerator:
         )  # fmt: skip
         retime = cleanup is not False and beat_sync is not False and mask is None and music is not None
         beats = song_beats(song, self.cache, self.audio_encoder) if retime else None
-        motions = self.finish(motions, beats, mask=mask, cleanup=cleanup, beat_sync=beat_sync)
-        return Dance(motions, self.fps, self.floor_height, song, plan.text)
+        stats: list[dict[str, float]] = []
+        finished = self.finish(motions, beats, mask=mask, cleanup=cleanup, beat_sync=beat_sync, stats=stats)
+        return Dance(finished, self.fps, self.floor_height, song, plan.text, raw=motions, finishing=stats)
 
     def finish(
         self,
@@ -335,20 +358,31 @@ class DanceGenerator:
         mask: torch.Tensor | None = None,
         cleanup: bool | FloorCleanup = True,
         beat_sync: bool | BeatSync = True,
+        stats: list[dict[str, float]] | None = None,
     ) -> torch.Tensor:
         """The model's dances (S, T, 151) as generate.py writes them. ``cleanup`` False: unchanged (the model's raw
         output). Otherwise, first, unless ``beat_sync`` is False, each dance is retimed so that its pauses fall on
         the music beats (frames, (K,); :func:`dgsdp.generation.beatsync.sync_to_beats`; not with an editing
         ``mask``, whose given frames would move, nor without beats); then the feet are put on the run's floor
-        (:func:`dgsdp.motion.clean_motion`; given channels of an edit are kept exactly)."""
-        if cleanup is False:
-            return motions
-        if beat_sync is not False and music_beats is not None:
-            settings = beat_sync if isinstance(beat_sync, BeatSync) else None
-            beats = np.asarray(music_beats)
-            motions = sync_to_beats(motions, beats[beats < motions.shape[-2]], self.fps, mask=mask, settings=settings)
-        settings = cleanup if isinstance(cleanup, FloorCleanup) else None
-        return clean_motion(motions, self.fps, self.floor_height, mask=mask, settings=settings)
+        (:func:`dgsdp.motion.clean_motion`; given channels of an edit are kept exactly). ``stats``: a list that gets
+        one dict per dance of what each step changed (the ``stats`` of both functions; empty for a step not run)."""
+        notes: list[dict[str, float]] = [{} for _ in range(motions.shape[0] if motions.ndim == 3 else 1)]
+        if cleanup is not False:
+            if beat_sync is not False and music_beats is not None:
+                settings = beat_sync if isinstance(beat_sync, BeatSync) else None
+                beats = np.asarray(music_beats)
+                retimed: list[dict[str, float]] = []
+                motions = sync_to_beats(
+                    motions, beats[beats < motions.shape[-2]], self.fps, mask=mask, settings=settings, stats=retimed
+                )
+                notes = [{**n, **r} for n, r in zip(notes, retimed)]
+            settings = cleanup if isinstance(cleanup, FloorCleanup) else None
+            cleaned: list[dict[str, int]] = []
+            motions = clean_motion(motions, self.fps, self.floor_height, mask=mask, settings=settings, stats=cleaned)
+            notes = [{**n, **c} for n, c in zip(notes, cleaned)]
+        if stats is not None:
+            stats.extend(notes)
+        return motions
 
     def generate(
         self,

@@ -13,14 +13,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import torch
 from tqdm.auto import tqdm
 
 from dgsdp.audio.io import AUDIO_SUFFIXES
 from dgsdp.editing import load_motion_file
 from dgsdp.errors import ConfigError, DgsdpError
-from dgsdp.generation.dance import write_motion
-from dgsdp.generation.pipeline import DanceGenerator, EditSettings, StylePlan
+from dgsdp.generation.dance import Dance, write_motion
+from dgsdp.generation.pipeline import DanceGenerator, EditSettings, Finishing, StylePlan
 from dgsdp.sampling import SamplingSettings
 
 log = logging.getLogger(__name__)
@@ -63,6 +62,7 @@ class GenerateSettings:
     max_song_seconds: float | None = None
     cleanup: bool = True
     beat_sync: bool = True
+    finishing: Finishing = field(default_factory=Finishing)
     seconds: float | None = None
     blend_seconds: float = 2.0
     num_samples: int = 1
@@ -105,13 +105,14 @@ class SongDancer:
     def sampling(self) -> SamplingSettings:
         return self.settings.sampling
 
-    def dance(self, song: Path, plan: StylePlan) -> torch.Tensor:
-        """The motions (num_samples, T, 151) for one song in a resolved style."""
+    def dance(self, song: Path, plan: StylePlan) -> Dance:
+        """The dances (motions (num_samples, T, 151), and the model's raw output) for one song in a resolved style."""
         s = self.settings
         return self.generator.dance_to_song(
             song, plan, edit=s.edit, seconds=s.seconds, blend_seconds=s.blend_seconds, num_samples=s.num_samples,
-            sampling=s.sampling, seed=s.seed, progress=s.progress, cleanup=s.cleanup, beat_sync=s.beat_sync,
-        ).motion  # fmt: skip
+            sampling=s.sampling, seed=s.seed, progress=s.progress,
+            cleanup=s.cleanup and s.finishing.floor(), beat_sync=s.beat_sync and s.finishing.beat_sync(),
+        )  # fmt: skip
 
 
 def _safe_name(text: str) -> str:
@@ -135,7 +136,7 @@ def dance_songs(settings: GenerateSettings) -> GenerationReport:
             stem += "_"
         used.add(stem)
         try:
-            motions = dancer.dance(song, plan)
+            motions = dancer.dance(song, plan).motion
             files: list[Path] = []
             for k, motion in enumerate(motions):
                 name = stem if settings.num_samples == 1 else f"{stem}_sample{k}"

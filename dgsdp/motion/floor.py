@@ -70,7 +70,7 @@ class FloorCleanup:
     """Settings of :func:`clean_motion` (see the module docstring)."""
 
     contact_threshold: float = 0.5  # a contact channel above this is a predicted contact
-    max_air_seconds: float = 0.5  # longest run without contacts kept as a jump
+    max_air_seconds: float | None = 0.5  # longest run without contacts kept as a jump; None: any (no limit)
     smooth_seconds: float = 0.1  # Gaussian sigma of the vertical offset curve
     lock_feet: bool = True  # foot locking (two-bone leg IK); False: vertical correction only
     lock_blend_seconds: float = 0.1  # a lock fades in before and out after its contact run over this time
@@ -88,6 +88,8 @@ class FloorCleanup:
         names = ("max_air_seconds", "smooth_seconds", "lock_blend_seconds", "lock_window_seconds", "plant_height_m")
         for name in (*names, "max_lock_m", "given_blend_seconds"):
             value = getattr(self, name)
+            if name == "max_air_seconds" and value is None:
+                continue
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value}")
         if not (math.isfinite(self.floor_tolerance_m) and self.floor_tolerance_m >= 0):
@@ -163,6 +165,11 @@ def _smooth(x: np.ndarray, sigma_frames: float) -> np.ndarray:
     return gaussian_filter1d(x, sigma_frames, mode="nearest") if sigma_frames > 0 else x.copy()
 
 
+def _max_air_frames(s: FloorCleanup, fps: float, n_frames: int) -> int:
+    """The longest run of frames without contact kept as a jump (all of them without the limit)."""
+    return n_frames if s.max_air_seconds is None else int(math.floor(s.max_air_seconds * fps))
+
+
 # --- vertical root correction ---------------------------------------------------------------------------------
 def _vertical_offset(
     joints_z: np.ndarray, contacts: np.ndarray, floor: float, fps: float, s: FloorCleanup
@@ -176,7 +183,7 @@ def _vertical_offset(
     any_contact = contacts.any(axis=1)
     lowest_contact = np.where(contacts, feet, np.inf).min(axis=1)
     target = np.where(any_contact, np.maximum(-lowest_contact, need), np.nan)
-    max_air = int(math.floor(s.max_air_seconds * fps))
+    max_air = _max_air_frames(s, fps, n)
     for a, b in _runs(~any_contact):
         before = target[a - 1] if a > 0 else None
         after = target[b] if b < n else None
@@ -419,7 +426,10 @@ def _leg_channels(side: int) -> list[int]:
     return [ROTATION_CHANNELS.start + 6 * j + k for j in (hip, knee, ankle) for k in range(6)]
 
 
-def _clean_one(x: torch.Tensor, fps: float, floor: float, mask: torch.Tensor | None, s: FloorCleanup) -> torch.Tensor:
+def _clean_one(
+    x: torch.Tensor, fps: float, floor: float, mask: torch.Tensor | None, s: FloorCleanup, stats: dict[str, int]
+) -> torch.Tensor:
+    """One motion (T, 151) cleaned; ``stats`` gets how many frames each step touched."""
     x = x.double()
     parts = unpack_pose(x)
     contacts = _clean_contacts(parts.contacts.numpy() > s.contact_threshold)
@@ -433,9 +443,13 @@ def _clean_one(x: torch.Tensor, fps: float, floor: float, mask: torch.Tensor | N
         root_given = None if given is None else given[:, _ROOT_ROTATION].any(axis=1)
         root = rotmats[:, 0]
         if s.max_tilt_rate is not None:
-            root = limit_tilt_rate(root, s.max_tilt_rate / fps, root_given)
+            tilted = limit_tilt_rate(root, s.max_tilt_rate / fps, root_given)
+            stats["tilt_limited_frames"] = int((tilted != root).flatten(-2).any(-1).sum())
+            root = tilted
         if s.max_turn_rate is not None:
-            root = limit_turn_rate(root, s.max_turn_rate / fps, root_given)
+            turned = limit_turn_rate(root, s.max_turn_rate / fps, root_given)
+            stats["turn_limited_frames"] = int((turned != root).flatten(-2).any(-1).sum())
+            root = turned
         turned = (root != rotmats[:, 0]).flatten(-2).any(-1)  # frames the limit changed
         if turned.any():
             out[:, _ROOT_ROTATION] = torch.where(turned[:, None], matrix_to_6d(root), x[:, _ROOT_ROTATION])
@@ -454,10 +468,13 @@ def _clean_one(x: torch.Tensor, fps: float, floor: float, mask: torch.Tensor | N
         rotmats = _lock_feet(rotmats, parts.root_trans, planted, fps, s, free)
         changed = sorted({c for side in (0, 1) for c in _leg_channels(side)})
         moved = (rotmats != parts.rotmats).flatten(-2).any(-1).any(-1)  # frames the IK touched
+        stats["foot_locked_frames"] = int(moved.sum())
         sixd = matrix_to_6d(rotmats).flatten(-2)
         out[:, changed] = torch.where(
             moved[:, None], sixd[:, [c - ROTATION_CHANNELS.start for c in changed]], x[:, changed]
         )
+    max_air = _max_air_frames(s, fps, n)
+    stats["grounded_air_frames"] = sum(b - a for a, b in _runs(~contacts.any(axis=1)) if b - a > max_air)
     joints = forward_kinematics(rotmats, parts.root_trans)
     offset = _vertical_offset(joints[..., 2].numpy(), contacts, floor, fps, s) * root_free
     out[:, ROOT_Z_CHANNEL] = x[:, ROOT_Z_CHANNEL] + torch.from_numpy(offset)
@@ -473,10 +490,14 @@ def clean_motion(
     *,
     mask: torch.Tensor | None = None,
     settings: FloorCleanup | None = None,
+    stats: list[dict[str, int]] | None = None,
 ) -> torch.Tensor:
     """Feet on the floor (see the module docstring): unnormalised motion (T, 151) or (S, T, 151), z-up, at ``fps``,
     with its floor at ``floor_height`` metres -> the cleaned motion, same shape and dtype. ``mask`` (T, 151) or
-    (S, T, 151), 1 = given: those channels come back exactly as they went in."""
+    (S, T, 151), 1 = given: those channels come back exactly as they went in. ``stats``: a list that gets one dict
+    per motion, the frames each step touched (``tilt_limited_frames``, ``turn_limited_frames`` (with the limits
+    on), ``foot_locked_frames`` (with foot locking) and ``grounded_air_frames``: frames of runs without contact
+    longer than ``max_air_seconds``, brought down)."""
     if motion.shape[-1] != POSE_DIM or motion.ndim not in (2, 3):
         raise ValueError(f"clean_motion needs motion (T, {POSE_DIM}) or (S, T, {POSE_DIM}), got {tuple(motion.shape)}")
     if not (fps > 0 and math.isfinite(float(floor_height))):
@@ -489,10 +510,13 @@ def clean_motion(
             raise ValueError(f"mask {tuple(mask.shape)} does not match motion {tuple(motion.shape)}")
         masks = mask.detach().cpu().expand_as(batch)
     src = batch.detach().cpu()
+    notes: list[dict[str, int]] = [{} for _ in range(len(src))]
     cleaned = [
-        _clean_one(src[i], float(fps), float(floor_height), None if masks is None else masks[i], s)
+        _clean_one(src[i], float(fps), float(floor_height), None if masks is None else masks[i], s, notes[i])
         for i in range(len(src))
     ]
+    if stats is not None:
+        stats.extend(notes)
     out = torch.stack(cleaned).to(device=motion.device, dtype=motion.dtype)
     if mask is not None:  # exactly the given values, whatever the dtype round trip did
         out = torch.where(masks.to(motion.device).bool(), batch, out)

@@ -18,7 +18,7 @@ import re
 import shutil
 import time
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +29,7 @@ import numpy as np  # noqa: E402
 import soundfile as sf  # noqa: E402
 
 from dgsdp.errors import AudioError, ConfigError, DgsdpError  # noqa: E402
-from dgsdp.generation import parse_schedule  # noqa: E402
+from dgsdp.generation import Finishing, parse_schedule  # noqa: E402
 from dgsdp.sampling import METHODS, GuidanceSettings, SamplingSettings  # noqa: E402
 from dgsdp.studio import engine as eng  # noqa: E402
 from dgsdp.studio.viewer import CSS_TEMPLATE, HTML_TEMPLATE, JS_ON_LOAD, viewer_value, write_joints_json  # noqa: E402
@@ -62,6 +62,7 @@ class StudioConfig:
     device: str = "auto"
     queue_size: int = 16
     default_steps: int = SamplingSettings.steps
+    finishing: Finishing = field(default_factory=Finishing)  # the finishing's limits (generate.py's finishing keys)
 
 
 def find_checkpoints(outputs: str | Path) -> list[str]:
@@ -157,8 +158,9 @@ class Studio:
         self.work_dir = Path(config.work_dir).expanduser().resolve()
         self.work_dir.mkdir(parents=True, exist_ok=True)
         self.engine = engine or eng.Engine(
-            self.work_dir / "cache", device=config.device, max_song_seconds=config.max_song_seconds
-        )
+            self.work_dir / "cache", device=config.device, max_song_seconds=config.max_song_seconds,
+            finishing=config.finishing,
+        )  # fmt: skip
 
     # --- helpers ----------------------------------------------------------------------------------------------
     def checkpoints(self) -> list[str]:
@@ -440,12 +442,51 @@ def parse_args(argv: list[str] | None = None) -> StudioConfig:
     p.add_argument("--device", default=defaults.device, help="auto, cpu or cuda")
     p.add_argument("--queue-size", type=int, default=defaults.queue_size, help="requests that may wait in the queue")
     p.add_argument("--steps", type=int, default=defaults.default_steps, help="default number of sampling steps")
+    limits = p.add_argument_group("finishing limits (generate.py's finishing keys; docs/floor.md, docs/beatsync.md)")
+    f = defaults.finishing
+    limits.add_argument(
+        "--max-turn-rate",
+        type=_limit,
+        default=f.max_turn_rate,
+        metavar="RAD_S|none",
+        help=f"fastest turn of the body's facing (default {f.max_turn_rate:g}; none: no limit)",
+    )
+    limits.add_argument(
+        "--max-tilt-rate",
+        type=_limit,
+        default=f.max_tilt_rate,
+        metavar="RAD_S|none",
+        help=f"fastest tilt of the body's up axis (default {f.max_tilt_rate:g}; none: no limit)",
+    )
+    limits.add_argument(
+        "--max-air-seconds",
+        type=_limit,
+        default=f.max_air_seconds,
+        metavar="S|none",
+        help=f"longest jump without foot contact (default {f.max_air_seconds:g}; none: no limit)",
+    )
+    limits.add_argument(
+        "--beat-sync-reach",
+        type=float,
+        default=f.beat_sync_reach,
+        metavar="BEATS",
+        help=f"how far a pause may move onto a beat (default {f.beat_sync_reach:g}, at most 0.5)",
+    )
     a = p.parse_args(argv)
+    try:
+        finishing = Finishing(a.max_turn_rate, a.max_tilt_rate, a.max_air_seconds, a.beat_sync_reach)
+    except ConfigError as e:
+        p.error(str(e))
     return StudioConfig(
         checkpoint=a.checkpoint, host=a.host, port=a.port, outputs=a.outputs, work_dir=a.work_dir,
         max_upload_mb=a.max_upload_mb, max_song_seconds=a.max_seconds, device=a.device, queue_size=a.queue_size,
-        default_steps=a.steps,
+        default_steps=a.steps, finishing=finishing,
     )  # fmt: skip
+
+
+def _limit(text: str) -> float | None:
+    """A limit on the command line: a number, or none (no limit)."""
+    return None if text.strip().lower() in ("none", "null", "off") else float(text)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -25,7 +25,7 @@ import torch
 
 import dgsdp.export
 from dgsdp.errors import ConfigError
-from dgsdp.generation import DanceGenerator, EditSettings, write_motion
+from dgsdp.generation import DanceGenerator, EditSettings, Finishing, write_motion
 from dgsdp.motion import pose_to_joints
 from dgsdp.sampling import GuidanceSettings, SamplingSettings
 
@@ -92,8 +92,15 @@ class Dance:
 class Engine:
     """Loads checkpoints once (one model in memory per path) and runs requests one at a time."""
 
-    def __init__(self, cache_dir: str | Path, device: str = "auto", max_song_seconds: float | None = 600) -> None:
+    def __init__(
+        self,
+        cache_dir: str | Path,
+        device: str = "auto",
+        max_song_seconds: float | None = 600,
+        finishing: Finishing | None = None,
+    ) -> None:
         self.cache_dir = Path(cache_dir)
+        self.finishing = finishing or Finishing()  # the limits of the finishing (beat sync, floor cleanup)
         self.device = device
         self.max_song_seconds = max_song_seconds
         self._generators: dict[str, DanceGenerator] = {}
@@ -136,7 +143,8 @@ class Engine:
         edit = edit_settings(request.edit, n_frames, gen.fps)
         motion = gen.dance_to_song(
             request.song, plan, edit=edit, blend_seconds=float(request.blend_seconds), sampling=sampling,
-            seed=int(request.seed), progress=progress, cleanup=bool(request.cleanup),
+            seed=int(request.seed), progress=progress,
+            cleanup=bool(request.cleanup) and self.finishing.floor(), beat_sync=self.finishing.beat_sync(),
         ).motion[0]  # fmt: skip
         title = f"{request.song.stem} | {plan.text}" if plan.text else request.song.stem
         files = write_motion(

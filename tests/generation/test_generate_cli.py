@@ -145,3 +145,53 @@ def test_cleanup_is_on_by_default_and_switches_off(tmp_path, checkpoint, songs):
         generate(gen_config(tmp_path, checkpoint, songs["good"], "beat_sync=often"))
     with pytest.raises(ConfigError, match="cleanup must be true or false"):
         generate(gen_config(tmp_path, checkpoint, songs["good"], "cleanup=sometimes"))
+
+
+def test_finishing_limits_are_config_keys(tmp_path, checkpoint, songs):
+    """generate.py's finishing keys set the cleanup's limits: null lifts one, a bad value is one clear error."""
+    import torch
+
+    from dgsdp.audio import FeatureCache
+    from dgsdp.cli.generate import generate_settings
+    from dgsdp.generation import Finishing
+    from dgsdp.generation.beatsync import BeatSync, song_beats, sync_to_beats
+    from dgsdp.motion import FloorCleanup, clean_motion
+    from dgsdp.trained import load_model
+
+    settings = generate_settings(gen_config(tmp_path, checkpoint, songs["good"]))
+    assert settings.finishing == Finishing()
+    assert settings.finishing.floor() == FloorCleanup() and settings.finishing.beat_sync() == BeatSync()
+    lifted = ["finishing.max_turn_rate=null", "finishing.max_tilt_rate=null", "finishing.max_air_seconds=null",
+              "finishing.beat_sync_reach=0.4"]  # fmt: skip
+    cfg = gen_config(tmp_path / "lifted", checkpoint, songs["good"], "formats=[npy]", *lifted)
+    floor = generate_settings(cfg).finishing.floor()
+    assert floor.max_turn_rate is None and floor.max_tilt_rate is None and floor.max_air_seconds is None
+    assert generate_settings(cfg).finishing.beat_sync().max_shift_beats == 0.4
+    # the dance written is the raw one finished with exactly those limits
+    written = np.load(generate(cfg).written[str(songs["good"])][0])
+    raw_cfg = gen_config(tmp_path / "raw", checkpoint, songs["good"], "formats=[npy]", "cleanup=false")
+    raw = torch.from_numpy(np.load(generate(raw_cfg).written[str(songs["good"])][0]))
+    beats = song_beats(songs["good"], FeatureCache(tmp_path / "lifted" / "cache"))
+    retimed = sync_to_beats(raw, beats, 30.0, settings=BeatSync(max_shift_beats=0.4))
+    expected = clean_motion(retimed, 30, float(load_model(checkpoint).floor_height), settings=floor)
+    np.testing.assert_allclose(written, expected.numpy(), atol=1e-5)
+    for bad, message in [
+        ("finishing.max_turn_rate=-1", "max_turn_rate must be a positive number"),
+        ("finishing.max_tilt_rate=fast", "finishing.max_tilt_rate must be a number"),
+        ("finishing.beat_sync_reach=0.9", "max_shift_beats must lie in"),
+        ("finishing.beat_sync_reach=null", "beat_sync=false keeps the model's timing"),
+        ("+finishing.max_spin=3", "finishing has no key max_spin"),
+    ]:
+        with pytest.raises(ConfigError, match=message):
+            generate_settings(gen_config(tmp_path, checkpoint, songs["good"], bad))
+
+
+def test_studio_takes_the_same_limits():
+    from dgsdp.generation import Finishing
+    from dgsdp.studio.app import parse_args
+
+    assert parse_args([]).finishing == Finishing()
+    config = parse_args(["--max-turn-rate", "none", "--max-air-seconds", "1.5", "--beat-sync-reach", "0.3"])
+    assert config.finishing == Finishing(max_turn_rate=None, max_air_seconds=1.5, beat_sync_reach=0.3)
+    with pytest.raises(SystemExit):
+        parse_args(["--max-tilt-rate", "0"])
