@@ -15,6 +15,7 @@ import soundfile as sf
 from dgsdp.benchmarks import realsongs as rs
 from dgsdp.benchmarks.realsongs import songs
 from dgsdp.errors import ConfigError, DgsdpError
+from dgsdp.metrics.beats import motion_beats
 
 FPS = 30
 
@@ -117,16 +118,54 @@ def test_bas_on_the_beat_beats_the_half_beat_shifted_copy():
     assert math.isnan(one_beat.bas) and not one_beat.above_shifted
 
 
+def test_bas_edge_variant_uses_the_sigmas_as_frames():
+    music = np.arange(20, 300, 20)
+    scores = rs.beat_scores(stepping_dance(), music, variant="bas_edge")
+    assert scores.bas == pytest.approx(1.0)
+    # every music beat 10 frames from the nearest shifted kinematic beat; sigma 3 frames at 30 FPS (100 ms)
+    assert scores.shifted == pytest.approx(math.exp(-(10**2) / (2 * 3.0**2)), rel=1e-6)
+    # smoothed with sigma 5 frames a 6-frame wobble is gone: its minima are no kinematic beats there
+    wobble = translating(np.cumsum(np.r_[0.0, 0.01 * (1.1 - np.cos(2 * np.pi * np.arange(300) / 6))]))
+    assert len(motion_beats(wobble, fps=30, sigma_frames=5.0)) < len(motion_beats(wobble, fps=30, sigma_frames=2.5))
+
+
+def test_speed_by_phase_bins_each_step_by_its_place_in_the_beat():
+    joints = stepping_dance()  # step k moves 0.3 * (1.1 - cos(2 pi k / 20)) m/s: slowest just after each beat
+    beats = np.arange(20, 300, 20)
+    profile = rs.speed_by_phase(joints, beats)
+    speed = np.linalg.norm(np.diff(joints, axis=0), axis=-1).mean(axis=1) * FPS
+    expected = np.zeros(8)
+    counts = np.zeros(8)
+    for k in range(len(speed)):  # step k lies at time k + 0.5; beats 20 frames apart: 2.5 frames per eighth
+        t = k + 0.5
+        if 20 <= t < 280:
+            b = int(((t - 20) % 20) / 2.5)
+            expected[b] += speed[k]
+            counts[b] += 1
+    np.testing.assert_allclose(profile, expected / counts, rtol=1e-12)
+    assert int(np.argmin(profile)) == 0 and int(np.argmax(profile)) in (3, 4)
+    assert rs.phase_bins(10, [4]).tolist() == [-1] * 10  # one beat: no phase
+    assert np.isnan(rs.speed_by_phase(joints, [40])).all()
+    assert rs.phase_distance(0, 7) == 1 and rs.phase_distance(2, 6) == 4 and rs.phase_distance(5, 5) == 0
+
+
 def test_dance_figures_checks_follow_the_thresholds():
     joints = stepping_dance()
     joints[:, [7, 8, 10, 11], 2] = 0.0  # feet on the floor
     figures = rs.dance_figures(joints, music_beats=np.arange(20, 300, 20), boundaries=[75, 150, 225])
     assert figures.seconds == pytest.approx(301 / FPS)
-    assert figures.checks() == {"p999": True, "penetration": True, "floating": True, "seam": True, "bas": True}
+    speed = figures.mean_speed_m_s
+    assert all(figures.checks(train_speed=speed).values())
+    assert set(figures.checks(speed)) == {"p999", "penetration", "floating", "seam", "speed", "bas", "bas_edge"}
+    # the speed target: within 30% of the training data's; without that speed it cannot pass
+    assert figures.checks(train_speed=speed / 1.29)["speed"] and not figures.checks(train_speed=speed / 1.31)["speed"]
+    assert figures.checks(train_speed=speed / 0.71)["speed"] and not figures.checks(train_speed=speed / 0.69)["speed"]
+    assert not figures.checks(train_speed=math.nan)["speed"]
     joints[:, :, 2] += 0.5  # lifted 50 cm: floating in every frame
     joints[10, 3, 2] = -0.04  # and one joint 4 cm under the floor
-    checks = rs.dance_figures(joints, music_beats=[20, 40, 60], boundaries=[]).checks()
-    assert not checks["floating"] and not checks["penetration"] and checks["seam"]
+    checks = rs.dance_figures(joints, music_beats=[20, 40, 60], boundaries=[]).checks(speed)
+    assert not checks["floating"] and not checks["penetration"]
+    assert not checks["seam"]  # a NaN (no boundary to measure) is a failure
 
 
 def test_training_figures_without_the_training_data(tmp_path):
@@ -166,27 +205,54 @@ def test_all_styles_dances_every_song_in_every_genre():
     assert pairs == [(songs[0], "BR"), (songs[0], "KR"), (songs[1], "BR"), (songs[1], "KR"), (songs[2], "BR"),
                      (songs[2], "KR")]  # fmt: skip
     assert rs.style_plan(songs, ["BR", "KR"], None) == list(zip(songs, ["KR", "KR", "BR"]))
+    # every genre dances: those no song got dance to the original songs in turn
+    assert rs.style_plan(songs, ["BR", "KR", "JS", "JB", "PO"], None) == [
+        (songs[0], "KR"), (songs[1], "KR"), (songs[2], "BR"), (songs[0], "JS"), (songs[2], "JB"), (songs[0], "PO")
+    ]  # fmt: skip
     with pytest.raises(ConfigError, match="leave out --style"):
         rs.style_plan(songs, ["BR"], "krump", all_styles=True)
     with pytest.raises(ConfigError, match="no genres"):
         rs.style_plan(songs, [None], None, all_styles=True)
 
 
+def test_raw_summary_holds_the_model_to_its_beat_target():
+    def result(bas: float, edge: float, profile: list[float]) -> rs.SongResult:
+        r = rs.SongResult("x.wav", "BR")
+        r.raw = rs.SongFigures(10.0, 3.0, 0.0, 0.0, 1.0, 0.4, bas, 0.25, edge, 0.25, 8, 20, 3, profile)
+        r.raw_checks = r.raw.checks(train_speed=0.4)
+        r.figures, r.checks = r.raw, r.raw_checks
+        return r
+
+    slow_on_beat = [0.1, 0.4, 0.6, 0.7, 0.7, 0.6, 0.4, 0.2]  # slowest in the first eighth
+    train = [0.3, 0.6, 0.7, 0.8, 0.6, 0.3, 0.1, 0.05]  # slowest in the last eighth: one bin from the first
+    good = [result(0.5, 0.6, slow_on_beat) for _ in range(9)]
+    line, met = rs.raw_summary([*good, result(0.2, 0.6, slow_on_beat)], 0.4, train)  # 9 of 10 above: 90%
+    assert met and "bas_above_shifted=9/10 bas_edge_above_shifted=10/10" in line and "low_phase=0" in line
+    assert line.endswith("model_beat_target=pass") and "train_low_phase=7" in line
+    assert not rs.raw_summary([*good[:8], result(0.2, 0.6, slow_on_beat)] * 1, 0.4, train)[1]  # 8 of 9
+    assert not rs.raw_summary([*good, result(0.5, 0.1, slow_on_beat)][1:] + [result(0.5, 0.1, slow_on_beat)], 0.4,
+                              train)[1]  # 8 of 10 in the second variant  # fmt: skip
+    mid_beat = [0.5, 0.4, 0.3, 0.2, 0.1, 0.3, 0.4, 0.5]  # on the beat in both variants, slowest mid-beat
+    line, met = rs.raw_summary([result(0.5, 0.6, mid_beat)] * 10, 0.4, train)
+    assert not met and "low_phase=4" in line
+    assert not rs.raw_summary(good, 0.4, None)[1]  # without the training dances' profile it cannot pass
+
+
 def test_style_summary_counts_each_targets_misses_per_style():
     def result(style: str, p999: float, bas: float, error: str | None = None) -> rs.SongResult:
         r = rs.SongResult("x.wav", style, error=error)
         if error is None:
-            r.figures = rs.SongFigures(10.0, p999, 0.0, 0.0, 1.0, 0.4, bas, 0.25, 8, 20, 3)
-            r.checks = r.figures.checks()
+            r.figures = rs.SongFigures(10.0, p999, 0.0, 0.0, 1.0, 0.4, bas, 0.25, bas, 0.25, 8, 20, 3, [0.4] * 8)
+            r.checks = r.figures.checks(train_speed=0.4)
         return r
 
     results = [result("JS", 9.5, 0.3), result("JS", 4.0, 0.2), result("JS", 1.0, 0.0, error="unreadable"),
                result("BR", 3.0, 0.4)]  # fmt: skip
     assert rs.style_summary_lines(results) == [
         "style=JS dances=3 pass=0 errors=1 p999_missed=1 penetration_missed=0 floating_missed=0 seam_missed=0 "
-        "bas_missed=1 worst_p999=9.500",
+        "speed_missed=0 bas_missed=1 bas_edge_missed=1 worst_p999=9.500",
         "style=BR dances=1 pass=1 errors=0 p999_missed=0 penetration_missed=0 floating_missed=0 seam_missed=0 "
-        "bas_missed=0 worst_p999=3.000",
+        "speed_missed=0 bas_missed=0 bas_edge_missed=0 worst_p999=3.000",
     ]
 
 
@@ -243,10 +309,19 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     ])  # fmt: skip
     assert code == 0
     printed = capsys.readouterr().out.splitlines()
-    assert printed[-1].startswith("songs=3 ") and " errors=1 " in printed[-1]
+    data = json.loads(report.read_text())
+    # each song in one genre, then the genres no song got on the original songs in turn (the broken one too)
+    n_extra = len(data["songs"]) - 3
+    assert printed[-2].startswith(f"songs={3 + n_extra} ") and f" errors={1 + n_extra // 2} " in printed[-2]
+    first_styles = {s["style"] for s in data["songs"]}
+    assert printed[-1].startswith("raw: bas_above_shifted=") and printed[-1].split()[-1] in (
+        "model_beat_target=pass", "model_beat_target=FAIL"
+    )  # fmt: skip
     assert any(line.startswith("zz-broken.wav") and "ERROR" in line for line in printed)
     data = json.loads(report.read_text())
-    by_name = {s["name"]: s for s in data["songs"]}
+    by_name: dict[str, dict] = {}
+    for song in data["songs"]:  # a song's first dance: in its own genre
+        by_name.setdefault(song["name"], song)
     assert by_name["zz-broken.wav"]["error"] and by_name["zz-broken.wav"]["figures"] is None
     long, short = by_name["clicks.wav"], by_name["clicks-loud.wav"]
     assert long["figures"]["seconds"] == pytest.approx(7.0) and short["figures"]["seconds"] == pytest.approx(3.0)
@@ -254,15 +329,29 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     assert long["figures"]["n_boundaries"] == 2  # 210 frames, windows of 150 frames 75 apart: 75 and 150
     assert short["figures"]["n_boundaries"] == 0 and short["figures"]["seam_ratio"] is None  # one window: no seams
     for song in (long, short):
-        assert set(song["checks"]) == {"p999", "penetration", "floating", "seam", "bas"}
-        assert song["figures"]["mean_speed_m_s"] > 0
+        assert set(song["checks"]) == {"p999", "penetration", "floating", "seam", "speed", "bas", "bas_edge"}
+        assert set(song["raw_checks"]) == set(song["checks"])
+        assert song["figures"]["mean_speed_m_s"] > 0 and song["raw_figures"]["mean_speed_m_s"] > 0
+        assert len(song["figures"]["speed_by_phase"]) == 8
+        finishing = song["finishing"]  # the finishing ran, and how far it moved the joints is measured
+        assert finishing["beats"] >= 2 and 0 <= finishing["anchored_beats"] <= finishing["beats"]
+        assert finishing["moved_max_cm"] >= finishing["moved_mean_cm"] > 0
+        assert {"tilt_limited_frames", "turn_limited_frames", "grounded_air_frames"} <= set(finishing)
+    assert data["finishing"]["cleanup"] and data["finishing"]["beat_sync"]
+    assert data["finishing"]["floor_cleanup"]["max_turn_rate"] == 15.0
+    assert data["finishing"]["beat_sync_settings"]["max_shift_beats"] == 0.25
+    assert any(line.startswith("finishing (the final rows") for line in printed)
     # the figures are those of the dance written with --motions, measured here on their own
     import torch
 
     from dgsdp.motion import pose_to_joints
 
     motion = np.load(tmp_path / "dances" / "clicks.npy")
-    assert motion.shape == (210, 151)
+    raw = np.load(tmp_path / "dances" / "raw" / "clicks.npy")
+    assert motion.shape == raw.shape == (210, 151) and not np.allclose(motion, raw)
+    raw_joints = pose_to_joints(torch.from_numpy(raw).double()).numpy()
+    raw_step = np.linalg.norm(raw_joints[1:] - raw_joints[:-1], axis=-1) * 30
+    assert long["raw_figures"]["mean_speed_m_s"] == pytest.approx(raw_step.mean(), rel=1e-5)
     joints = pose_to_joints(torch.from_numpy(motion).double()).numpy()
     step = np.linalg.norm(joints[1:] - joints[:-1], axis=-1) * 30
     assert long["figures"]["mean_speed_m_s"] == pytest.approx(step.mean(), rel=1e-5)
@@ -298,11 +387,13 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     data = json.loads(report.read_text())
     genres = [s["style"] for s in data["songs"]]
     assert data["all_styles"] and len(genres) >= 2 and len(set(genres)) == len(genres)
-    assert {p.name for p in (tmp_path / "all").iterdir()} == {f"clicks__{g}.npy" for g in genres}
+    assert first_styles == set(genres)  # the default run gave every genre a turn
+    assert {p.name for p in (tmp_path / "all").iterdir() if p.is_file()} == {f"clicks__{g}.npy" for g in genres}
     summary = printed.index(next(line for line in printed if line.startswith("songs=")))
     assert printed[summary].startswith(f"songs={len(genres)} ")
-    assert [line.split()[0] for line in printed[summary + 1 :]] == [f"style={g}" for g in genres]
-    for song, line in zip(data["songs"], printed[summary + 1 :]):
+    assert [line.split()[0] for line in printed[summary + 1 : -1]] == [f"style={g}" for g in genres]
+    assert printed[-1].startswith("raw: ")
+    for song, line in zip(data["songs"], printed[summary + 1 : -1]):
         assert f" pass={int(song['passed'])} " in line
 
 

@@ -14,11 +14,15 @@ dances to every audio file of the folder exactly as ``generate.py checkpoint=<ck
 does (same config, same :meth:`DanceGenerator.dance_to_song` call; no files written) and prints, per song, at
 30 FPS from the 24 SMPL joints (z-up metres): the p99.9 joint speed, the deepest penetration below the floor, the
 fraction of frames floating above it, the seam ratio of the long-form window boundaries, the mean joint speed
-against the training data's, and the beat alignment score against the same motion shifted by half a beat; then a
-summary line. The metric functions below are plain numpy on joints (T, 24, 3).
+against the training data's, the beat alignment score in two variants against the same motion shifted by half a
+beat, and the mean speed by beat phase. Each song has two rows from the same sample: the raw model's (``cleanup=
+false``) and the finished dance's (what generate.py writes, judged against the targets), and a line of what the
+finishing changed; then a summary line of the finished dances and one of the raw model's timing. The metric
+functions below are plain numpy on joints (T, 24, 3).
 """
 
 from dgsdp.benchmarks.realsongs.measures import (
+    BAS_VARIANTS,
     BeatScores,
     SongFigures,
     beat_scores,
@@ -27,7 +31,10 @@ from dgsdp.benchmarks.realsongs.measures import (
     mean_joint_speed,
     p999_joint_speed,
     penetration_cm,
+    phase_bins,
+    phase_distance,
     seam_ratio,
+    speed_by_phase,
     training_figures,
     window_boundaries,
     windowed_speed,
@@ -36,6 +43,8 @@ from dgsdp.benchmarks.realsongs.report import (
     SongResult,
     format_row,
     header,
+    low_phase,
+    raw_summary,
     style_plan,
     style_summary_lines,
     styles_for,
@@ -45,6 +54,7 @@ from dgsdp.benchmarks.realsongs.run import main, run_benchmark
 from dgsdp.benchmarks.realsongs.songs import SongInfo, analyse_song, pick_varied, prepare, song_family, write_versions
 
 __all__ = [
+    "BAS_VARIANTS", "low_phase", "phase_bins", "phase_distance", "raw_summary", "speed_by_phase",
     "BeatScores", "SongFigures", "SongInfo", "SongResult", "analyse_song", "beat_scores", "dance_figures",
     "floating_fraction", "format_row", "header", "main", "mean_joint_speed", "p999_joint_speed", "penetration_cm",
     "pick_varied", "prepare", "run_benchmark", "seam_ratio", "song_family", "style_plan", "style_summary_lines",

@@ -27,7 +27,9 @@ PENETRATION_MAX_CM = 3.0  # deepest joint at most this far below the floor
 FLOATING_MAX_FRACTION = 0.10  # fraction of frames with the lowest foot joint > FLOATING_HEIGHT_M above the floor
 FLOATING_HEIGHT_M = 0.10
 SEAM_RATIO_MAX = 1.3  # speed around window boundaries / speed around any frame
-CHECK_NAMES = ("p999", "penetration", "floating", "seam", "bas")  # the targets, in the order they are checked
+SPEED_RATIO_RANGE = (0.7, 1.3)  # mean joint speed within 30% of the training data's
+# the targets, in the order they are checked; "bas" and "bas_edge": above the half-beat-shifted copy
+CHECK_NAMES = ("p999", "penetration", "floating", "seam", "speed", "bas", "bas_edge")
 SEAM_HALF_WIDTH_FRAMES = 2
 
 
@@ -102,6 +104,15 @@ def seam_ratio(
     return float(speed[frames].mean()) / overall
 
 
+# The two BAS variants, as (motion-speed smoothing sigma, score sigma) in frames at 30 FPS; the music beats are
+# librosa's tracker's on the song (the 35-d features' beat column) for both.
+BAS_VARIANTS = {
+    "bas": (2.5, 1.5),  # the project's: the reference's 60 FPS sigmas (5, 3 frames) converted through time: 50 ms
+    "bas_edge": (5.0, 3.0),  # Bailando's code as EDGE ran it on 30 FPS joints: the same numbers taken as frames
+}
+PHASE_BINS = 8  # speed by beat phase, in eighths of a beat from the beat
+
+
 @dataclass
 class BeatScores:
     """BAS of a dance and of the same motion shifted later by ``shift_frames`` (half the median beat interval)."""
@@ -116,13 +127,15 @@ class BeatScores:
         return bool(self.bas > self.shifted)
 
 
-def beat_scores(joints: np.ndarray, music_beats: Sequence[int], fps: float = FPS) -> BeatScores:
-    """Beat alignment score (:mod:`dgsdp.metrics.beats`, Bailando variant) of a dance and of the same motion
-    shifted later in time by half the median interval of the music beats (frame indices at ``fps``).
+def beat_scores(joints: np.ndarray, music_beats: Sequence[int], fps: float = FPS, variant: str = "bas") -> BeatScores:
+    """Beat alignment score (:mod:`dgsdp.metrics.beats`, Bailando's formula, the sigmas of ``variant`` in
+    :data:`BAS_VARIANTS`) of a dance and of the same motion shifted later in time by half the median interval of
+    the music beats (frame indices at ``fps``).
 
     Shifting the motion by h frames shifts its kinematic beats by h (those that leave the dance are dropped);
     music beats at or after the last speed sample are ignored, as in :func:`dgsdp.metrics.beats.beat_alignment`.
     With fewer than two music beats there is no beat interval: both scores are NaN."""
+    motion_sigma, score_sigma = BAS_VARIANTS[variant]
     positions = check_joints(joints, min_frames=2)
     n_frames = positions.shape[0]
     music = np.asarray(music_beats, dtype=np.int64).reshape(-1)
@@ -130,14 +143,52 @@ def beat_scores(joints: np.ndarray, music_beats: Sequence[int], fps: float = FPS
     if music.size < 2:
         return BeatScores(math.nan, math.nan, 0, int(music.size))
     shift = int(round(float(np.median(np.diff(np.sort(music)))) / 2.0))
-    beats = motion_beats(positions, fps=fps)
+    beats = motion_beats(positions, fps=fps, sigma_frames=motion_sigma)
     shifted = beats + shift
     shifted = shifted[shifted < n_frames - 1]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", MetricWarning)  # no motion beat at all: both scores are 0
-        bas = beat_alignment_from_beats(beats, music, fps=fps)
-        bas_shifted = beat_alignment_from_beats(shifted, music, fps=fps)
+        bas = beat_alignment_from_beats(beats, music, fps=fps, sigma_frames=score_sigma)
+        bas_shifted = beat_alignment_from_beats(shifted, music, fps=fps, sigma_frames=score_sigma)
     return BeatScores(bas, bas_shifted, shift, int(music.size))
+
+
+def phase_bins(n_steps: int, music_beats: Sequence[int], bins: int = PHASE_BINS) -> np.ndarray:
+    """The beat-phase bin (0 .. bins - 1) of each of ``n_steps`` steps between frames, (n_steps,): step t (frames
+    t -> t + 1, at time t + 0.5) lies k/bins .. (k+1)/bins of the way from one music beat to the next. -1 before
+    the first and from the last beat on, and everywhere with fewer than two beats."""
+    beats = np.unique(np.asarray(music_beats, dtype=np.float64).reshape(-1))
+    out = np.full(int(n_steps), -1, dtype=np.int64)
+    if beats.size < 2:
+        return out
+    t = np.arange(int(n_steps)) + 0.5
+    inside = (t >= beats[0]) & (t < beats[-1])
+    k = np.searchsorted(beats, t[inside], side="right") - 1
+    phase = (t[inside] - beats[k]) / (beats[k + 1] - beats[k])
+    out[inside] = np.minimum((phase * bins).astype(np.int64), bins - 1)
+    return out
+
+
+def mean_by_bin(values: np.ndarray, which: np.ndarray, bins: int = PHASE_BINS) -> np.ndarray:
+    """Mean of ``values`` per bin index of ``which`` (entries -1 left out), ``(bins,)``; NaN for an empty bin."""
+    keep = which >= 0
+    sums = np.bincount(which[keep], weights=values[keep], minlength=bins)
+    counts = np.bincount(which[keep], minlength=bins)
+    return np.where(counts > 0, sums / np.maximum(counts, 1), math.nan)
+
+
+def speed_by_phase(
+    joints: np.ndarray, music_beats: Sequence[int], fps: float = FPS, bins: int = PHASE_BINS
+) -> np.ndarray:
+    """Mean joint speed (m/s) by phase within the beat (:func:`phase_bins`), ``(bins,)``; NaN for an empty bin."""
+    speed = joint_speeds(joints, fps).mean(axis=1)
+    return mean_by_bin(speed, phase_bins(len(speed), music_beats, bins), bins)
+
+
+def phase_distance(a: int, b: int, bins: int = PHASE_BINS) -> int:
+    """How many bins apart two phase bins are around the beat (0 .. bins // 2)."""
+    d = abs(int(a) - int(b)) % bins
+    return min(d, bins - d)
 
 
 @dataclass
@@ -152,19 +203,26 @@ class SongFigures:
     mean_speed_m_s: float
     bas: float
     bas_shifted: float
+    bas_edge: float
+    bas_edge_shifted: float
     bas_shift_frames: int
     n_music_beats: int
     n_boundaries: int
+    speed_by_phase: list[float]
 
-    def checks(self) -> dict[str, bool]:
-        """Pass/fail per target (a dance of one window has no seams: its seam check passes)."""
+    def checks(self, train_speed: float) -> dict[str, bool]:
+        """Pass/fail per target (:data:`CHECK_NAMES`). A NaN figure fails its check; so does a speed check without
+        the training data's speed ``train_speed`` (NaN)."""
+        ratio = self.mean_speed_m_s / train_speed if train_speed > 0 else math.nan
         passed = (
             self.p999_speed_m_s < P999_SPEED_MAX_M_S,
             self.penetration_cm <= PENETRATION_MAX_CM,
             self.floating_fraction < FLOATING_MAX_FRACTION,
-            math.isnan(self.seam_ratio) or self.seam_ratio < SEAM_RATIO_MAX,
+            self.seam_ratio < SEAM_RATIO_MAX,
+            SPEED_RATIO_RANGE[0] <= ratio <= SPEED_RATIO_RANGE[1],
             bool(self.bas > self.bas_shifted),
-        )
+            bool(self.bas_edge > self.bas_edge_shifted),
+        )  # every comparison with a NaN is False
         return dict(zip(CHECK_NAMES, passed, strict=True))
 
 
@@ -178,7 +236,8 @@ def dance_figures(
 ) -> SongFigures:
     """Every figure of one dance, joints (T, 24, 3) z-up metres."""
     positions = check_joints(joints, min_frames=2)
-    beats = beat_scores(positions, music_beats, fps)
+    beats = beat_scores(positions, music_beats, fps, "bas")
+    edge = beat_scores(positions, music_beats, fps, "bas_edge")
     return SongFigures(
         seconds=positions.shape[0] / fps,
         p999_speed_m_s=p999_joint_speed(positions, fps),
@@ -188,9 +247,12 @@ def dance_figures(
         mean_speed_m_s=mean_joint_speed(positions, fps),
         bas=beats.bas,
         bas_shifted=beats.shifted,
+        bas_edge=edge.bas,
+        bas_edge_shifted=edge.shifted,
         bas_shift_frames=beats.shift_frames,
         n_music_beats=beats.n_music_beats,
         n_boundaries=len(boundaries),
+        speed_by_phase=speed_by_phase(positions, music_beats, fps).tolist(),
     )
 
 
@@ -207,7 +269,8 @@ def training_figures(
     """The benchmark's figures on the data a run was trained on (its config's ``data.root``, train split, read with
     the project's loader), the reference for the dances: mean joint speed over every frame of every dance, p99.9
     joint speed, deepest penetration, floating fraction over every frame, and the mean seam ratio of the dances
-    with long-form window boundaries laid on them (about 1.0: real dances have no seams). Cached in
+    with long-form window boundaries laid on them (about 1.0: real dances have no seams), and the mean speed by beat
+    phase (:func:`speed_by_phase`, every step of every dance pooled, against its song's beats). Cached in
     ``cache_dir/realsongs``. Returns (figures, where they came from), or (None, why) without the data."""
     from dgsdp.data.aistpp import read_split
     from dgsdp.data.datamodule import load_sequences
@@ -228,7 +291,7 @@ def training_figures(
     for name in names:
         pkl = root / "motions" / f"{name}.pkl"
         stamps.append([name, [pkl.stat().st_size, pkl.stat().st_mtime_ns] if pkl.is_file() else None])
-    settings = {"floor_m": float(floor_m), "window": int(window), "stride": int(stride), "fps": fps}
+    settings = {"floor_m": float(floor_m), "window": int(window), "stride": int(stride), "fps": fps, "phase": 1}
     key = stable_hash({"root": str(root.resolve()), "split": split, "files": stamps, **settings})
     cache_file = Path(cache_dir) / "realsongs" / f"train-figures-{key}.json"
     if cache_file.is_file():
@@ -238,6 +301,8 @@ def training_figures(
             pass  # a damaged cache file is recomputed
     import torch
 
+    from dgsdp.audio.cache import FeatureCache
+    from dgsdp.generation.beatsync import song_beats
     from dgsdp.motion import pose_to_joints
 
     try:
@@ -245,6 +310,8 @@ def training_figures(
     except DgsdpError as e:
         return None, f"training data unreadable: {e}"
     speeds, floating, seams, penetration, frames = [], 0.0, [], 0.0, 0
+    step_speeds, step_bins = [], []  # every step of every dance with a song, for the speed by beat phase
+    cache = FeatureCache(cache_dir)
     for seq in sequences:
         if len(seq.motion) < 2:
             continue
@@ -256,6 +323,10 @@ def training_figures(
         boundaries = window_boundaries(len(joints), window, stride)
         if boundaries.size:
             seams.append(seam_ratio(joints, boundaries, fps))
+        wav = root / "wavs" / f"{seq.music_id}.wav"
+        if wav.is_file():
+            step_speeds.append(speeds[-1].reshape(len(joints) - 1, -1).mean(axis=1))
+            step_bins.append(phase_bins(len(joints) - 1, song_beats(wav, cache)))
     if not speeds:
         return None, f"no training dance of two frames or more in {root} ({split})"
     pooled = np.concatenate(speeds)
@@ -265,6 +336,9 @@ def training_figures(
         "penetration_cm": penetration,
         "floating_fraction": floating / frames,
         "seam_ratio": float(np.nanmean(seams)) if seams else math.nan,
+        "speed_by_phase": mean_by_bin(np.concatenate(step_speeds), np.concatenate(step_bins)).tolist()
+        if step_speeds
+        else None,
         "n_dances": len(speeds),
         "seconds": frames / fps,
     }

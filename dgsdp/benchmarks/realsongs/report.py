@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -10,9 +11,11 @@ from typing import Any
 
 import numpy as np
 
-from dgsdp.benchmarks.realsongs.measures import CHECK_NAMES, SongFigures
+from dgsdp.benchmarks.realsongs.measures import CHECK_NAMES, PHASE_BINS, SongFigures, phase_distance
 from dgsdp.benchmarks.realsongs.songs import song_family
 from dgsdp.errors import ConfigError
+
+MODEL_BEAT_FRACTION = 0.9  # the raw model above the shifted copy on at least this fraction of the dances
 
 
 def styles_for(songs: Sequence[Path], genres: Sequence[str | None], style: str | None) -> list[str | None]:
@@ -27,26 +30,38 @@ def styles_for(songs: Sequence[Path], genres: Sequence[str | None], style: str |
 def style_plan(
     songs: Sequence[Path], genres: Sequence[str | None], style: str | None, all_styles: bool = False
 ) -> list[tuple[Path, str | None]]:
-    """The dances to make, (song, style) pairs: each song in its style from :func:`styles_for`, or with
-    ``all_styles`` each song in every genre of the checkpoint, song by song."""
+    """The dances to make, (song, style) pairs: each song in its style from :func:`styles_for`, then every genre
+    that got no song in turn on the original songs (so that every genre dances); or with ``all_styles`` each song
+    in every genre of the checkpoint, song by song."""
     if all_styles:
         if style is not None:
             raise ConfigError("--all-styles dances every song in every genre: leave out --style")
         if all(g is None for g in genres):
             raise ConfigError("--all-styles needs a model with a style embedding; this checkpoint has no genres")
         return [(song, genre) for song in songs for genre in genres]
-    return list(zip(songs, styles_for(songs, genres, style)))
+    plan = list(zip(songs, styles_for(songs, genres, style)))
+    if style is None:
+        originals = [s for s in songs if s.stem == song_family(s)] or list(songs)
+        missing = [g for g in genres if g is not None and g not in {g for _, g in plan}]
+        plan += [(originals[k % len(originals)], genre) for k, genre in enumerate(missing)]
+    return plan
 
 
 @dataclass
 class SongResult:
+    """One dance of the benchmark: the finished dance's figures (``figures``, what generate.py writes) and the raw
+    model's (``raw``, ``cleanup=false``) from the same sample, and what the finishing changed (``finishing``)."""
+
     name: str
     style: str | None
     figures: SongFigures | None = None
+    raw: SongFigures | None = None
+    finishing: dict[str, float] = field(default_factory=dict)
     feature_seconds: float = math.nan
     dance_seconds: float = math.nan
     error: str | None = None
     checks: dict[str, bool] = field(default_factory=dict)
+    raw_checks: dict[str, bool] = field(default_factory=dict)
 
     @property
     def passed(self) -> bool:
@@ -57,28 +72,88 @@ def _fmt(value: float, spec: str) -> str:
     return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
 
 
+def _ratio(speed: float, train_speed: float) -> float:
+    return speed / train_speed if train_speed and not math.isnan(train_speed) else math.nan
+
+
+def low_phase(profile: Sequence[float] | None) -> int | None:
+    """The beat-phase bin (0 = on the beat, in eighths) where a speed-by-phase profile is slowest, or None."""
+    values = np.asarray([math.nan if v is None else v for v in profile or []], dtype=np.float64)
+    return None if values.size == 0 or np.isnan(values).all() else int(np.nanargmin(values))
+
+
 def header(width: int = 30) -> str:
     return (
-        f"{'song':<{width}} {'style':<6} {'sec':>6} {'p999':>6} {'pen_cm':>6} {'float':>6} {'seam':>5} {'speed':>6} "
-        f"{'ratio':>5} {'bas':>5} {'bas_sh':>6} {'gen_s':>6}  result"
+        f"{'song':<{width}} {'style':<6} {'stage':<5} {'sec':>6} {'p999':>6} {'pen_cm':>6} {'float':>6} {'seam':>5} "
+        f"{'speed':>6} {'ratio':>5} {'bas':>5} {'bas_sh':>6} {'basE':>5} {'basE_sh':>7} {'lowph':>5} {'gen_s':>6}  "
+        "result"
+    )
+
+
+def verdict(checks: dict[str, bool]) -> str:
+    failed = [k for k, ok in checks.items() if not ok]
+    return "pass" if not failed else "FAIL(" + ",".join(failed) + ")"
+
+
+def _stage_row(name: str, style: str, stage: str, f: SongFigures, train_speed: float, gen_s: str, result: str,
+               width: int) -> str:  # fmt: skip
+    return (
+        f"{name:<{width}} {style:<6} {stage:<5} {f.seconds:6.1f} {f.p999_speed_m_s:6.2f} {f.penetration_cm:6.1f} "
+        f"{f.floating_fraction:6.3f} {_fmt(f.seam_ratio, '5.2f'):>5} {f.mean_speed_m_s:6.3f} "
+        f"{_fmt(_ratio(f.mean_speed_m_s, train_speed), '5.2f'):>5} {_fmt(f.bas, '5.3f'):>5} "
+        f"{_fmt(f.bas_shifted, '6.3f'):>6} {_fmt(f.bas_edge, '5.3f'):>5} {_fmt(f.bas_edge_shifted, '7.3f'):>7} "
+        f"{_fmt(low_phase(f.speed_by_phase), 'd'):>5} {gen_s:>6}  {result}"
     )
 
 
 def format_row(result: SongResult, train_speed: float, width: int = 30) -> str:
+    """Three lines: the raw model's figures (its checks in brackets: targets of the finished dance only), the
+    finished dance's (the targets), and what the finishing changed."""
+    style = str(result.style)
     if result.error is not None:
-        return f"{result.name:<{width}} {str(result.style):<6} ERROR: {result.error}"
-    f = result.figures
-    failed = [name for name, ok in result.checks.items() if not ok]
-    verdict = "pass" if not failed else "FAIL(" + ",".join(failed) + ")"
-    ratio = f.mean_speed_m_s / train_speed if train_speed and not math.isnan(train_speed) else math.nan
-    return (
-        f"{result.name:<{width}} {str(result.style):<6} {f.seconds:6.1f} {f.p999_speed_m_s:6.2f} {f.penetration_cm:6.1f} "
-        f"{f.floating_fraction:6.3f} {_fmt(f.seam_ratio, '5.2f'):>5} {f.mean_speed_m_s:6.3f} {_fmt(ratio, '5.2f'):>5} "
-        f"{_fmt(f.bas, '5.3f'):>5} {_fmt(f.bas_shifted, '6.3f'):>6} {result.dance_seconds:6.1f}  {verdict}"
-    )
+        return f"{result.name:<{width}} {style:<6} ERROR: {result.error}"
+    raw = _stage_row(result.name, style, "raw", result.raw, train_speed, "", f"({verdict(result.raw_checks)})", width)
+    final = _stage_row(result.name, style, "final", result.figures, train_speed, f"{result.dance_seconds:.1f}",
+                       verdict(result.checks), width)  # fmt: skip
+    return f"{raw}\n{final}\n  {finishing_text(result.finishing)}"
+
+
+def finishing_text(n: dict[str, float]) -> str:
+    """What the finishing changed, in words (the keys of :meth:`DanceGenerator.finish`'s stats, plus the joint
+    displacement ``moved_mean_cm`` / ``moved_max_cm``)."""
+    if not n:
+        return "finishing: off"
+    parts = [f"finishing moved the joints {_fmt(n.get('moved_mean_cm', math.nan), '.1f')} cm on average, "
+             f"{_fmt(n.get('moved_max_cm', math.nan), '.1f')} cm at most"]  # fmt: skip
+    if "anchored_beats" in n:
+        parts.append(
+            f"retimed {n['anchored_beats']:g}/{n['beats']:g} beats (poses moved {n['mean_shift_ms']:.0f} ms on average, "
+            f"{n['max_shift_ms']:.0f} ms at most)"
+        )
+    limits = [f"{k.removesuffix('_frames').replace('_', ' ')} {n[k]:g}" for k in LIMIT_KEYS if k in n]
+    if limits:
+        parts.append("frames touched: " + ", ".join(limits))
+    return "; ".join(parts)
+
+
+LIMIT_KEYS = ("tilt_limited_frames", "turn_limited_frames", "grounded_air_frames", "foot_locked_frames")
+
+
+def _profile(profiles: Sequence[Sequence[float]]) -> np.ndarray:
+    values = np.asarray([[math.nan if v is None else v for v in p] for p in profiles], dtype=np.float64)
+    if values.size == 0:
+        return np.full(PHASE_BINS, math.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a bin empty everywhere stays NaN
+        return np.nanmean(values, axis=0)
+
+
+def _count(done: Sequence[SongResult], checks: str, name: str) -> str:
+    return f"{sum(getattr(r, checks).get(name, False) for r in done)}/{len(done)}"
 
 
 def summary_line(results: Sequence[SongResult], train_speed: float) -> str:
+    """The finished dances against the targets (the last-but-one line of the report)."""
     done = [r for r in results if r.error is None]
     figs = [r.figures for r in done]
 
@@ -86,16 +161,48 @@ def summary_line(results: Sequence[SongResult], train_speed: float) -> str:
         values = [v for v in values if not math.isnan(v)]
         return _fmt(fn(values), ".3f") if values else "n/a"
 
-    ratios = [f.mean_speed_m_s / train_speed for f in figs] if train_speed and not math.isnan(train_speed) else []
+    ratios = [_ratio(f.mean_speed_m_s, train_speed) for f in figs]
+    ratios = [r for r in ratios if not math.isnan(r)]
     gen = [r.dance_seconds / r.figures.seconds for r in done if r.figures.seconds > 0]
     return (
         f"songs={len(results)} pass={sum(r.passed for r in results)} errors={len(results) - len(done)} "
         f"worst_p999={worst([f.p999_speed_m_s for f in figs])} worst_pen_cm={worst([f.penetration_cm for f in figs])} "
         f"worst_float={worst([f.floating_fraction for f in figs])} worst_seam={worst([f.seam_ratio for f in figs])} "
-        f"bas_above_shifted={sum(r.checks.get('bas', False) for r in done)}/{len(done)} "
+        f"speed_within_30pct={_count(done, 'checks', 'speed')} bas_above_shifted={_count(done, 'checks', 'bas')} "
+        f"bas_edge_above_shifted={_count(done, 'checks', 'bas_edge')} "
         f"speed_ratio_mean={_fmt(float(np.mean(ratios)) if ratios else math.nan, '.3f')} "
         f"train_speed={_fmt(train_speed, '.3f')} gen_s_per_dance_s={_fmt(float(np.mean(gen)) if gen else math.nan, '.2f')}"
     )
+
+
+def raw_summary(
+    results: Sequence[SongResult], train_speed: float, train_profile: Sequence[float] | None
+) -> tuple[str, bool]:
+    """The raw model's timing (the last line of the report) and whether it meets the model's own beat target: above
+    the half-beat-shifted copy on at least :data:`MODEL_BEAT_FRACTION` of the dances in both BAS variants, and its
+    speed-by-phase minimum within one eighth of a beat of the training dances'."""
+    done = [r for r in results if r.error is None]
+    above = {k: sum(r.raw_checks.get(k, False) for r in done) for k in ("bas", "bas_edge")}
+    profile = _profile([r.raw.speed_by_phase for r in done])
+    low, train_low = low_phase(profile.tolist()), low_phase(train_profile)
+    phase_ok = low is not None and train_low is not None and phase_distance(low, train_low) <= 1
+    met = bool(done) and all(n >= MODEL_BEAT_FRACTION * len(done) for n in above.values()) and phase_ok
+    ratios = [_ratio(r.raw.mean_speed_m_s, train_speed) for r in done]
+    ratios = [x for x in ratios if not math.isnan(x)]
+    line = (
+        f"raw: bas_above_shifted={above['bas']}/{len(done)} bas_edge_above_shifted={above['bas_edge']}/{len(done)} "
+        f"speed_ratio_mean={_fmt(float(np.mean(ratios)) if ratios else math.nan, '.3f')} "
+        f"speed_by_phase={_phase_text(profile)} low_phase={_fmt(low, 'd')} "
+        f"train_speed_by_phase={_phase_text(train_profile)} train_low_phase={_fmt(train_low, 'd')} "
+        f"model_beat_target={'pass' if met else 'FAIL'}"
+    )
+    return line, met
+
+
+def _phase_text(profile: Sequence[float] | None) -> str:
+    if profile is None:
+        return "n/a"
+    return "[" + ",".join(_fmt(None if v is None else float(v), ".2f") for v in profile) + "]"
 
 
 def style_summary_lines(results: Sequence[SongResult]) -> list[str]:

@@ -12,22 +12,28 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from dgsdp.benchmarks.realsongs.measures import (
+    BAS_VARIANTS,
     FLOATING_HEIGHT_M,
     FLOATING_MAX_FRACTION,
     P999_SPEED_MAX_M_S,
     PENETRATION_MAX_CM,
     SEAM_RATIO_MAX,
+    SPEED_RATIO_RANGE,
     _no_nan,
     dance_figures,
     training_figures,
     window_boundaries,
 )
 from dgsdp.benchmarks.realsongs.report import (
+    MODEL_BEAT_FRACTION,
     SongResult,
     _fmt,
     format_row,
     header,
+    raw_summary,
     style_plan,
     style_summary_lines,
     summary_line,
@@ -68,6 +74,15 @@ def run_benchmark(
     songs = find_songs(str(folder))
     job = SongDancer.from_settings(generate_settings(cfg))
     generator, sampling = job.generator, job.sampling
+    settings = job.settings
+    finishing_settings = {  # every post-processing setting of the finished dances
+        "cleanup": settings.cleanup,
+        "beat_sync": settings.cleanup and settings.beat_sync,
+        "floor_cleanup": asdict(settings.finishing.floor()) if settings.cleanup else None,
+        "beat_sync_settings": asdict(settings.finishing.beat_sync())
+        if settings.cleanup and settings.beat_sync
+        else None,
+    }
     window = min(sampling.window_frames or generator.window, generator.model.denoiser.seq_len)
     stride = min(sampling.stride_frames, window)
     floor = generator.floor_height if floor_m is None else float(floor_m)
@@ -83,10 +98,18 @@ def run_benchmark(
         genres = list(generator.embedder().vocab.codes)
     dances = style_plan(songs, genres, None if style is None else str(style), all_styles)
     plans: dict[str | None, Any] = {}
+    first: dict[Path, tuple[Path, str | None]] = {}
+    for pair in dances:
+        first.setdefault(pair[0], pair)
     print(
         f"checkpoint {checkpoint}; {len(songs)} songs in {folder}; sampling {sampling.method}-{sampling.steps} "
         f"guidance music={sampling.guidance.music:g}; windows {window} frames, stride {stride}; floor z={floor:g} m; "
         f"training mean joint speed {_fmt(train_speed, '.3f')} m/s from {train_source}",
+        file=out,
+    )
+    print(
+        "finishing (the final rows; the raw rows are the model's own output from the same sample): "
+        + json.dumps(finishing_settings, separators=(",", ":")),
         file=out,
     )
     if reference is not None:
@@ -111,15 +134,26 @@ def run_benchmark(
             beats = song_beats(song, generator.cache, generator.audio_encoder)
             result.feature_seconds = time.perf_counter() - start
             start = time.perf_counter()
-            motions = job.dance(song, plans[song_style])
+            dance = job.dance(song, plans[song_style])
             result.dance_seconds = time.perf_counter() - start
             if motions_dir is not None:
-                name = f"{song.stem}__{song_style}" if all_styles else song.stem
-                write_motion(motions[0], motions_dir / name, fps=generator.fps, formats=["npy"])
-            joints = pose_to_joints(motions[0].double()).numpy()
+                # a song's first dance is <song>; its dances in other genres are <song>__<genre>
+                name = (
+                    song.stem if not all_styles and (song, song_style) == first[song] else f"{song.stem}__{song_style}"
+                )
+                write_motion(dance.motion[0], motions_dir / name, fps=generator.fps, formats=["npy"])
+                write_motion(dance.raw[0], motions_dir / "raw" / name, fps=generator.fps, formats=["npy"])
+            joints = pose_to_joints(dance.motion[0].double()).numpy()
+            raw_joints = pose_to_joints(dance.raw[0].double()).numpy()
             boundaries = window_boundaries(len(joints), window, stride)
             result.figures = dance_figures(joints, music_beats=beats, boundaries=boundaries, floor_m=floor)
-            result.checks = result.figures.checks()
+            result.raw = dance_figures(raw_joints, music_beats=beats, boundaries=boundaries, floor_m=floor)
+            result.checks = result.figures.checks(train_speed)
+            result.raw_checks = result.raw.checks(train_speed)
+            moved = np.linalg.norm(joints - raw_joints, axis=-1)
+            result.finishing = {
+                **dance.finishing[0], "moved_mean_cm": 100 * float(moved.mean()), "moved_max_cm": 100 * float(moved.max())
+            }  # fmt: skip
         except (DgsdpError, torch.cuda.OutOfMemoryError) as e:
             result.error = str(e).replace("\n", " ")
         results.append(result)
@@ -127,6 +161,8 @@ def run_benchmark(
     print(summary_line(results, train_speed), file=out, flush=True)
     if all_styles:
         print("\n".join(style_summary_lines(results)), file=out, flush=True)
+    raw_line, _ = raw_summary(results, train_speed, None if reference is None else reference.get("speed_by_phase"))
+    print(raw_line, file=out, flush=True)
     if json_path is not None:
         from dgsdp.utils.io import atomic_write_text
 
@@ -147,7 +183,11 @@ def run_benchmark(
                 "floating_fraction_below": FLOATING_MAX_FRACTION,
                 "floating_height_m": FLOATING_HEIGHT_M,
                 "seam_ratio_below": SEAM_RATIO_MAX,
+                "speed_ratio_within": list(SPEED_RATIO_RANGE),
+                "bas_variants_sigma_frames": {k: list(v) for k, v in BAS_VARIANTS.items()},
+                "model_beat_fraction_at_least": MODEL_BEAT_FRACTION,
             },
+            "finishing": finishing_settings,
             "songs": [
                 {
                     "name": r.name,
@@ -156,15 +196,19 @@ def run_benchmark(
                     "feature_seconds": r.feature_seconds,
                     "dance_seconds": r.dance_seconds,
                     "figures": None if r.figures is None else asdict(r.figures),
+                    "raw_figures": None if r.raw is None else asdict(r.raw),
+                    "finishing": r.finishing,
                     "speed_ratio": None
                     if r.figures is None or math.isnan(train_speed)
                     else r.figures.mean_speed_m_s / train_speed,
                     "checks": r.checks,
+                    "raw_checks": r.raw_checks,
                     "passed": r.passed,
                 }
                 for r in results
             ],
             "summary": summary_line(results, train_speed),
+            "raw_summary": raw_line,
         }
         atomic_write_text(json_path, json.dumps(_no_nan(payload), indent=2, allow_nan=False) + "\n")
     return results
@@ -184,8 +228,11 @@ def _prepare_main(argv: list[str]) -> int:
     )  # fmt: skip
     parser.add_argument("--max-songs", type=int, default=8, help="how many originals to pick (default 8)")
     parser.add_argument("--min-seconds", type=float, default=MIN_SONG_SECONDS, help="shortest song to consider")
+    parser.add_argument("--exclude", nargs="+", type=Path, default=[], metavar="SET",
+                        help="song sets (folders made by prepare) whose songs this one must not share: a report set "
+                        "disjoint from the set settings were tuned on")  # fmt: skip
     args = parser.parse_args(argv)
-    return prepare(args.out, args.sources, args.max_songs, args.min_seconds)
+    return prepare(args.out, args.sources, args.max_songs, args.min_seconds, args.exclude)
 
 
 def main(argv: list[str] | None = None) -> int:

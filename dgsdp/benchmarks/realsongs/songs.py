@@ -200,8 +200,15 @@ def write_versions(song: SongInfo, out: Path) -> dict[str, Any]:
     return files
 
 
-def prepare(out: Path, sources: Sequence[str], max_songs: int, min_seconds: float = MIN_SONG_SECONDS) -> int:
-    """Build the song set in ``out`` (see the module docstring); returns the exit code."""
+def prepare(
+    out: Path,
+    sources: Sequence[str],
+    max_songs: int,
+    min_seconds: float = MIN_SONG_SECONDS,
+    exclude: Sequence[Path] = (),
+) -> int:
+    """Build the song set in ``out`` (see the module docstring); returns the exit code. ``exclude``: song sets
+    (folders) whose songs this set must not share, so that settings tuned on one are reported on another."""
     from dgsdp.audio.io import AUDIO_SUFFIXES
     from dgsdp.utils.io import atomic_write_text
 
@@ -215,6 +222,11 @@ def prepare(out: Path, sources: Sequence[str], max_songs: int, min_seconds: floa
         print(f"source folder {d} does not exist: skipped", file=sys.stderr)
     if not files:
         raise ConfigError(f"no audio files in {', '.join(sources)}; give --sources with folders of songs")
+    taken = set()
+    for folder in exclude:
+        if not Path(folder).is_dir():
+            raise ConfigError(f"--exclude {folder}: not a folder of songs")
+        taken |= {song_family(f) for f in Path(folder).iterdir() if f.suffix.lower() in suffixes}
     candidates: dict[str, SongInfo] = {}
     skipped: list[str] = []
     for k, path in enumerate(files, 1):
@@ -223,7 +235,7 @@ def prepare(out: Path, sources: Sequence[str], max_songs: int, min_seconds: floa
         if info is None:
             skipped.append(f"{path}: neither ffmpeg nor the project's loader decodes it")
             continue
-        if info.seconds < min_seconds:
+        if info.seconds < min_seconds or info.name in taken:
             continue
         if info.decoder == "loader":
             print(f"  ffmpeg cannot decode {path.name}; the project's loader reads it", file=sys.stderr)
@@ -237,6 +249,7 @@ def prepare(out: Path, sources: Sequence[str], max_songs: int, min_seconds: floa
     out.mkdir(parents=True, exist_ok=True)
     manifest: dict[str, Any] = {
         "sources": list(sources),
+        "excluded_sets": [str(f) for f in exclude],
         "loud_gain_db": LOUD_GAIN_DB,
         "skipped": skipped,
         "candidates": [asdict(c) for c in candidates.values()],
