@@ -72,6 +72,7 @@ class LibrosaEncoder(AudioEncoder):
         mfcc_fmax_hz: float | None = 3500.0,
         per_window: bool = False,
         beat_phase: bool = False,
+        rhythm_only: bool = False,
     ) -> None:
         if sample_rate % hop_length != 0 or sample_rate // hop_length != self.fps:
             raise ValueError(f"sample_rate / hop_length must equal {self.fps} FPS, got {sample_rate} / {hop_length}")
@@ -93,6 +94,7 @@ class LibrosaEncoder(AudioEncoder):
         self.feature_dim = 1 + self.n_mfcc + self.n_chroma + 2
         self.per_window = bool(per_window)  # not a settings() key: whole-song features are the same
         self.beat_phase = bool(beat_phase)
+        self.rhythm_only = bool(rhythm_only)
 
     def settings(self) -> dict[str, Any]:
         return {
@@ -106,6 +108,8 @@ class LibrosaEncoder(AudioEncoder):
             "standardize": self.standardize,
             "mfcc_fmax_hz": self.mfcc_fmax_hz,
             "librosa": librosa.__version__,
+            # only when on: the features (and caches, and checkpoints) of full-feature runs stay as they were
+            **({"rhythm_only": True} if self.rhythm_only else {}),
         }
 
     def start_bpm(self, music_id: str | None) -> float | None:
@@ -150,4 +154,8 @@ class LibrosaEncoder(AudioEncoder):
         features = np.concatenate(
             [envelope[:n, None], mfcc[:n], chroma[:n], peak_onehot[:, None], beat_onehot[:, None]], axis=1
         ).astype(np.float32)
-        return standardize_song(features, self.standardize)
+        features = standardize_song(features, self.standardize)
+        if self.rhythm_only:  # timbre and harmony out; the 35-column layout (and its beat column) stays
+            features[:, MFCC_COLUMNS] = 0.0
+            features[:, CHROMA_COLUMNS] = 0.0
+        return features
