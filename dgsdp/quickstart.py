@@ -25,15 +25,20 @@ from dgsdp.utils.logs import lightning_logs_through_root
 
 FREE_TEXT_STYLE = "sharp, powerful krump with heavy chest pops and arm swings"
 TRAIN_STEPS = 500
-# A few hundred steps are not the papers' long runs. Measured on the same data and seed, each change alone (the
-# mean joint speed of the dances to 8 real songs against the training data's; docs/benchmarks.md, "Real songs"):
+# A few hundred steps are not the papers' long runs. The recipe is experiment=quickstart_row2 (conf/experiment/;
+# one change per row in sweeps/quickstart.yaml), each choice measured on the same data and seed (docs/benchmarks.md,
+# "Real songs" and "The model's own timing"):
 # - Adan lr 1e-3 instead of 2e-4: the validation loss after 171 steps was 0.23 against 0.41;
-# - the reconstruction loss alone (loss=simple) instead of EDGE's four terms: 0.34 against 0.26. EDGE's foot term
-#   holds the feet still wherever the model predicts a contact, and a young model predicts contacts on 91-100% of
-#   frames;
 # - a weight average over the last ~50 steps (EMA decay 0.98) instead of ~200 (0.995), which in a 500-step run
-#   still averages in the first, motionless steps: 0.60 against 0.34.
-QUICKSTART_TRAINING = (f"trainer.max_steps={TRAIN_STEPS}", "optimizer.lr=1e-3", "loss=simple", "model.ema_decay=0.98")
+#   still averages in the first, motionless steps;
+# - the reconstruction loss with EDGE's velocity term, without its FK and foot-contact terms (loss=velocity). The
+#   foot term holds the feet still wherever a young model predicts a contact (91-100% of frames); without the
+#   velocity term the model's frames jitter and its dances to held-out songs move fastest on the beat instead of
+#   pausing there (1-2 of 10 above their half-beat-shifted copy; 9-10 of 10 with it);
+# - rhythm-only music features (audio.rhythm_only: onset envelope, onset peaks, beats; no MFCC or chroma): the
+#   synthetic songs' timbre is nothing like a real song's, and a model that listened to it lost the beat on real
+#   songs.
+QUICKSTART_TRAINING = (f"trainer.max_steps={TRAIN_STEPS}", "experiment=quickstart_row2")
 NEXT_HINT = (
     "      add sampling.guidance.music=<w> to choose how strongly the dance follows the music (classifier-free\n"
     "      guidance; default 2.5: 1 = plain conditional sampling, higher = more music-driven and more energetic,\n"

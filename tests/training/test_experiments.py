@@ -11,6 +11,15 @@ from dgsdp.trained.spec import RunSpec
 from dgsdp.training import DanceDiffusion
 
 EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
+# the quick start's ablation (sweeps/quickstart.yaml): small model, one change per row;
+# row: (velocity loss weight, audio.rhythm_only, audio.beat_phase)
+QUICKSTART_ROWS = {
+    "quickstart_row0": (0.0, False, False),
+    "quickstart_row1": (2.964, False, False),
+    "quickstart_row2": (2.964, True, False),
+    "quickstart_row3": (2.964, True, True),
+}
+PAPER_SIZE = [name for name in EXPERIMENTS if name not in QUICKSTART_ROWS]
 PAPER_ROWS = {
     # row: (audio, style kind, injection mode)
     "table4_row0": ("jukebox", "prompt", "modulation"),
@@ -35,7 +44,7 @@ def test_experiment_folder_holds_every_paper_row():
     assert set(PAPER_ROWS) <= set(EXPERIMENTS)
 
 
-@pytest.mark.parametrize("name", EXPERIMENTS)
+@pytest.mark.parametrize("name", PAPER_SIZE)
 def test_experiment_composes_and_builds_paper_size_model(name, tmp_path):
     cfg = compose_config("train", [f"experiment={name}"], output_dir=tmp_path)
     audio = audio_encoder_from_config(cfg)  # builds the encoder object; weights load only when encoding
@@ -61,6 +70,26 @@ def test_experiment_composes_and_builds_paper_size_model(name, tmp_path):
             assert model.denoiser.style_dim == 0
         assert cfg.model.d_model == 512 and cfg.model.n_layers == 8 and cfg.model.n_heads == 8
         assert cfg.model.ff_dim == 1024 and cfg.data.batch_size == 128
+
+
+@pytest.mark.parametrize("name", sorted(QUICKSTART_ROWS))
+def test_quickstart_rows_change_one_thing_each(name, tmp_path):
+    from dgsdp.quickstart import QUICKSTART_TRAINING
+
+    cfg = compose_config("train", [f"experiment={name}"], output_dir=tmp_path)
+    velocity, rhythm_only, beat_phase = QUICKSTART_ROWS[name]
+    assert (cfg.loss.velocity, cfg.audio.rhythm_only, cfg.audio.beat_phase) == (velocity, rhythm_only, beat_phase)
+    assert cfg.loss.simple == 1.0 and cfg.loss.fk == 0.0 and cfg.loss.foot == 0.0
+    assert (cfg.trainer.max_steps, cfg.optimizer.lr, cfg.model.ema_decay) == (500, 1e-3, 0.98)
+    assert cfg.run_name == name and cfg.model.d_model == compose_config("train", []).model.d_model  # small model
+    spec = RunSpec.from_config(
+        cfg, audio_encoder=audio_encoder_from_config(cfg), style_embedder=style_embedder_from_config(cfg),
+        style_bank_size=0, groups={},
+    )  # fmt: skip
+    assert spec.conditioning.audio_dim == 35 + 2 * beat_phase
+    # the quick start trains row 2
+    quick = compose_config("train", list(QUICKSTART_TRAINING), output_dir=tmp_path)
+    assert (quick.loss.velocity, quick.audio.rhythm_only, quick.audio.beat_phase) == QUICKSTART_ROWS["quickstart_row2"]
 
 
 def test_edge_parameter_count_matches_paper(tmp_path):
