@@ -42,7 +42,9 @@ def clip_requests(
             ).float()
         else:
             music = clip.music()
-            music = None if music is None else torch.from_numpy(np.ascontiguousarray(music)).float()
+            music = (
+                None if music is None else torch.from_numpy(np.array(music, dtype=np.float32))
+            )  # a copy: may be read-only
         mask = known = None
         if variant.task != "none":
             mask = build_mask(

@@ -165,7 +165,10 @@ def test_dance_figures_checks_follow_the_thresholds():
     joints[10, 3, 2] = -0.04  # and one joint 4 cm under the floor
     checks = rs.dance_figures(joints, music_beats=[20, 40, 60], boundaries=[]).checks(speed)
     assert not checks["floating"] and not checks["penetration"]
-    assert not checks["seam"]  # a NaN (no boundary to measure) is a failure
+    assert checks["seam"]  # one window (no boundary): no seam to check
+    still = np.repeat(joints[:1], len(joints), axis=0)  # a dance that does not move: its seam ratio is NaN
+    still_figures = rs.dance_figures(still, music_beats=[20, 40, 60], boundaries=[75, 150])
+    assert math.isnan(still_figures.seam_ratio) and not still_figures.checks(speed)["seam"]
 
 
 def test_training_figures_without_the_training_data(tmp_path):
