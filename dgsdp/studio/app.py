@@ -444,27 +444,19 @@ def parse_args(argv: list[str] | None = None) -> StudioConfig:
     p.add_argument("--steps", type=int, default=defaults.default_steps, help="default number of sampling steps")
     limits = p.add_argument_group("finishing limits (generate.py's finishing keys; docs/floor.md, docs/beatsync.md)")
     f = defaults.finishing
-    limits.add_argument(
-        "--max-turn-rate",
-        type=_limit,
-        default=f.max_turn_rate,
-        metavar="RAD_S|none",
-        help=f"fastest turn of the body's facing (default {f.max_turn_rate:g}; none: no limit)",
-    )
-    limits.add_argument(
-        "--max-tilt-rate",
-        type=_limit,
-        default=f.max_tilt_rate,
-        metavar="RAD_S|none",
-        help=f"fastest tilt of the body's up axis (default {f.max_tilt_rate:g}; none: no limit)",
-    )
-    limits.add_argument(
-        "--max-air-seconds",
-        type=_limit,
-        default=f.max_air_seconds,
-        metavar="S|none",
-        help=f"longest jump without foot contact (default {f.max_air_seconds:g}; none: no limit)",
-    )
+    for key, metavar, what in (
+        ("max_turn_rate", "RAD_S", "fastest turn of the body's facing"),
+        ("max_tilt_rate", "RAD_S", "fastest tilt of the body's up axis"),
+        ("max_air_seconds", "S", "longest jump without foot contact"),
+    ):
+        default = getattr(f, key)
+        limits.add_argument(
+            "--" + key.replace("_", "-"),
+            type=_limit,
+            default=default,
+            metavar=f"{metavar}|none",
+            help=f"{what} (default {'none' if default is None else f'{default:g}'}; none: no limit)",
+        )
     limits.add_argument(
         "--beat-sync-reach",
         type=float,
