@@ -119,6 +119,24 @@ def test_dropped_music_ignores_the_music(null_music):
         assert not torch.allclose(a[1], c[1]) and model.null_music_hidden.numel() == 32
 
 
+@pytest.mark.parametrize("null_music", ["input", "output"])
+def test_rows_of_a_mixed_batch_match_the_rows_alone(null_music):
+    """Kept and dropped rows together give each row's result alone (with the nulls after the encoder only the
+    kept rows run the music path), and the nulls and the music projection both get their gradients."""
+    torch.manual_seed(0)
+    model = DanceDenoiser(d_model=32, n_layers=1, n_heads=2, ff_dim=64, audio_dim=8, null_music=null_music).eval()
+    x, t, music = torch.randn(4, 20, 151), torch.tensor([3, 500, 900, 40]), torch.randn(4, 20, 8)
+    keep = torch.tensor([True, False, False, True])
+    together = model(x, t, music, keep_music=keep)
+    for i in range(4):
+        alone = model(x[i : i + 1], t[i : i + 1], music[i : i + 1], keep_music=keep[i : i + 1])
+        assert torch.allclose(together[i], alone[0], atol=1e-5)
+    together.square().sum().backward()
+    assert model.null_music.grad.abs().sum() > 0 and model.music_proj.weight.grad.abs().sum() > 0
+    if null_music == "output":
+        assert model.null_music_hidden.grad.abs().sum() > 0
+
+
 def test_gradient_checkpointing_gives_the_same_loss_and_gradients():
     torch.manual_seed(0)
     model = DanceDenoiser(d_model=32, n_layers=2, n_heads=2, ff_dim=64, audio_dim=8, dropout=0.1).train()
@@ -153,3 +171,19 @@ def test_runs_stored_without_the_cross_attention_switch_load_without_positions()
     assert stored.build_denoiser("checkpoint").layers[0].cross_attn.rotary is not None
     assert old.architecture()["model"]["cross_attention_rotary"] is False
     assert spec.architecture()["model"]["cross_attention_rotary"] is True
+
+
+def test_bf16_autocast_keeps_the_motion_projections_in_float32():
+    """Under bf16 autocast the x0 prediction is not rounded to bf16 (that rounding shook the dances; see
+    DanceDenoiser._output), in the per-step and in the cached-conditioning path, and stays near float32's."""
+    torch.manual_seed(0)
+    model = DanceDenoiser(d_model=32, n_layers=2, n_heads=2, ff_dim=64, audio_dim=8).eval()
+    x, t, music = torch.randn(2, 20, 151), torch.tensor([3, 700]), torch.randn(2, 20, 8)
+    reference = model(x, t, music)
+    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
+        per_step = model(x, t, music)
+        cached = model(x, t, cond=model.condition(music, None))
+    for out in (per_step, cached):
+        assert out.dtype == torch.float32
+        assert not torch.equal(out, out.bfloat16().float())
+        assert (out - reference).abs().max() < 0.1 * reference.abs().max()
