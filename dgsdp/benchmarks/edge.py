@@ -1,14 +1,22 @@
-"""Sampling speed against EDGE's own code: ``python -m dgsdp.benchmarks.edge --edge-src EDGE_REPO_DIR``.
+"""Speed against EDGE's own code: ``python -m dgsdp.benchmarks.edge --edge-src EDGE_REPO_DIR``.
 
-EDGE's ``DanceDecoder`` and ``GaussianDiffusion`` are imported from the checkout you give (dgsdp ships none of its
-code), built at the paper size with random weights, and the same weights go into dgsdp's denoiser (the EDGE
-import's mapping). One song of ``--seconds`` of random music features is danced by EDGE's ``long_ddim_sample``
-(DDIM-50, guidance 2 with its ramp, its half-window overwrite) and by dgsdp with the project's default sampling and
-with ``sampling=edge``; repeats are interleaved and the fastest of each is compared. The last line is
-``sampling_speedup_vs_edge=<EDGE / dgsdp default> training_speedup_vs_edge=<x or n/a>``.
+EDGE's ``DanceDecoder``, ``GaussianDiffusion``, ``SMPLSkeleton`` and ``Adan`` are imported from the checkout you give
+(dgsdp ships none of its code), built at the paper size with random weights.
 
-EDGE's training step computes its FK loss with pytorch3d; where pytorch3d is not installed it cannot run, and the
-training figure is printed as n/a with the reason.
+Sampling: the same weights go into dgsdp's denoiser (the EDGE import's mapping). One song of ``--seconds`` of random
+music features is danced by EDGE's ``long_ddim_sample`` (DDIM-50, guidance 2 with its ramp, its half-window
+overwrite) and by dgsdp with the project's default sampling, with ``sampling=edge``, and with the default under bf16
+autocast at 10 and at 5 steps (``sampling.bf16=true``, ``sampling.steps=5``).
+
+Training: one step at ``--batch`` random 5 s windows, as EDGE's ``train_loop`` runs it (its loss with the velocity,
+FK and foot terms, backward, Adan step, EMA update) against dgsdp's ``experiment=edge`` model and loss (the same
+architecture, loss terms and weights, Adan, EMA), each in float32 and under bf16 autocast (what Lightning's
+``trainer.precision=bf16-mixed`` and accelerate's ``mixed_precision=bf16`` do). EDGE's FK imports pytorch3d; its
+rotation code is pure Python, so a checkout of facebookresearch/pytorch3d on ``PYTHONPATH`` serves (no build). Without
+pytorch3d the training figure is n/a.
+
+Repeats are interleaved and the fastest of each is compared. The last line is
+``sampling_speedup_vs_edge=<EDGE / dgsdp default> training_speedup_vs_edge=<EDGE's fastest / dgsdp's fastest>``.
 """
 
 from __future__ import annotations
@@ -17,6 +25,7 @@ import argparse
 import importlib.util
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -27,9 +36,12 @@ from dgsdp.interop.edge.checkpoint import EdgeCheckpoint, EdgeScaler
 from dgsdp.interop.edge.convert import build_model
 from dgsdp.interop.edge.verify import edge_code, edge_model
 from dgsdp.sampling import SamplingSettings
+from dgsdp.trained.spec import RunSpec
 
 SIZES = {"paper": {"d": 512, "layers": 8, "ff": 1024}, "small": {"d": 64, "layers": 2, "ff": 128}}
 WINDOW, STRIDE = 150, 75
+EDGE_SWITCHES = {"rotary_placement": "input", "cross_attention_rotary": True, "null_music": "output"}
+PRECISIONS = ("fp32", "bf16")
 
 
 def identity_scaler() -> EdgeScaler:
@@ -38,10 +50,9 @@ def identity_scaler() -> EdgeScaler:
     return EdgeScaler(ones, zeros, -ones, ones, 2 * ones, (-1.0, 1.0), True, 1)
 
 
-def run(edge_src: str, *, size: str, features: int, seconds: float, repeats: int) -> dict[str, list[float]]:
+def run_sampling(edge_src: str, *, size: str, features: int, seconds: float, repeats: int) -> dict[str, list[float]]:
     n_frames = int(round(seconds * 30))
     layout = WindowLayout(n_frames, WINDOW, STRIDE)
-    times: dict[str, list[float]] = {"edge long_ddim_sample": [], "dgsdp default": [], "dgsdp sampling=edge": []}
     with edge_code(edge_src) as (edge, stand_ins):
         torch.manual_seed(0)
         s = SIZES[size]
@@ -52,7 +63,11 @@ def run(edge_src: str, *, size: str, features: int, seconds: float, repeats: int
         presets = {
             "dgsdp default": SamplingSettings(),
             "dgsdp sampling=edge": SamplingSettings.from_config(compose_config("generate", ["sampling=edge"]).sampling),
+            # the CPU switches measured against the default (docs/benchmarks.md has their quality)
+            "dgsdp default, bf16": SamplingSettings(bf16=True),
+            "dgsdp 5 steps, bf16": SamplingSettings(steps=5, bf16=True),
         }
+        times: dict[str, list[float]] = {"edge long_ddim_sample": [], **{name: [] for name in presets}}
         music = torch.randn(layout.n_windows, WINDOW, features, generator=torch.Generator().manual_seed(1))
 
         def time_edge() -> float:
@@ -73,29 +88,112 @@ def run(edge_src: str, *, size: str, features: int, seconds: float, repeats: int
     return times
 
 
+def run_training(edge_src: str, *, size: str, features: int, batch: int, repeats: int) -> dict[str, list[float]]:
+    """Seconds per training step of EDGE's code and dgsdp's, in float32 and under bf16 autocast, interleaved."""
+    from dgsdp.training.module import DanceDiffusion
+
+    s = SIZES[size]
+    steps: dict[str, Callable[[bool], None]] = {}
+    with edge_code(edge_src) as (edge, _):
+        torch.manual_seed(0)
+        theirs, diffusion = edge_model(
+            edge, WINDOW, s["d"], s["ff"], s["layers"], 8, features, 2.0, smpl=edge["SMPLSkeleton"]("cpu")
+        )
+        diffusion.train()
+        edge_optim = edge["Adan"](theirs.parameters(), lr=4e-4, weight_decay=0.02)  # EDGE.py's
+        spec = RunSpec.from_groups(
+            model="paper", audio_dim=features, loss="edge", optimizer="adan", d_model=s["d"], n_layers=s["layers"],
+            ff_dim=s["ff"], **EDGE_SWITCHES,
+        )  # fmt: skip
+        ours = DanceDiffusion(spec).train()
+        our_optim = ours.configure_optimizers()
+        gen = torch.Generator().manual_seed(1)
+        x = torch.rand(batch, WINDOW, 151, generator=gen) * 2 - 1
+        music = torch.randn(batch, WINDOW, features, generator=gen)
+        data = {"motion": x, "audio": music, "genre": torch.zeros(batch, dtype=torch.long)}
+
+        def edge_step(bf16: bool) -> None:  # EDGE.py's train_loop, ema_interval 1
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+                total, _ = diffusion(x, music)
+            edge_optim.zero_grad()
+            total.backward()
+            edge_optim.step()
+            diffusion.ema.update_model_average(diffusion.master_model, diffusion.model)
+
+        def our_step(bf16: bool) -> None:  # DanceDiffusion's training_step, optimizer_step and EMA update
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+                loss = ours._loss(ours.denoiser, data, train=True)["loss"]
+            loss.backward()
+            our_optim.step()
+            our_optim.zero_grad(set_to_none=True)
+            ours.ema.update_parameters(ours.denoiser)
+
+        for precision in PRECISIONS:
+            steps[f"edge {precision}"] = edge_step
+            steps[f"dgsdp {precision}"] = our_step
+        times: dict[str, list[float]] = {name: [] for name in steps}
+        for i in range(repeats + 1):  # the first round warms up
+            for name, step in steps.items():
+                start = time.perf_counter()
+                step(name.endswith("bf16"))
+                if i:
+                    times[name].append(time.perf_counter() - start)
+    return times
+
+
+def _print_times(times: dict[str, list[float]]) -> dict[str, float]:
+    best = {name: min(values) for name, values in times.items()}
+    for name, values in times.items():
+        print(f"  {name:<22} {best[name]:8.2f}   (all: {', '.join(f'{v:.2f}' for v in values)})")
+    return best
+
+
 def main(argv: list[str] | None = None) -> dict[str, float]:
     parser = argparse.ArgumentParser(prog="python -m dgsdp.benchmarks.edge", description=__doc__.splitlines()[0])
     parser.add_argument("--edge-src", required=True, help="a checkout of EDGE's repository (Stanford-TML/EDGE)")
     parser.add_argument("--size", choices=sorted(SIZES), default="paper")
     parser.add_argument("--features", type=int, choices=(35, 4800), default=4800, help="music feature width")
     parser.add_argument("--seconds", type=float, default=30.0, help="length of the song (seconds)")
+    parser.add_argument("--batch", type=int, default=32, help="training batch (windows)")
     parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--parts", nargs="+", choices=("sampling", "training"), default=["sampling", "training"])
     parser.add_argument("--threads", type=int, default=None, help="CPU threads (torch.set_num_threads)")
     args = parser.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
-    times = run(args.edge_src, size=args.size, features=args.features, seconds=args.seconds, repeats=args.repeats)
-    best = {name: min(values) for name, values in times.items()}
-    print(f"size {args.size}, {args.features}-d features, {args.seconds:g} s song, {torch.get_num_threads()} threads, "
-          f"{args.repeats} interleaved repeats; fastest of each (s):")  # fmt: skip
-    for name, values in times.items():
-        print(f"  {name:<22} {best[name]:8.2f}   (all: {', '.join(f'{v:.2f}' for v in values)})")
-    edge = best["edge long_ddim_sample"]
-    print(f"  dgsdp sampling=edge vs EDGE's code: {edge / best['dgsdp sampling=edge']:.2f}x")
-    training = "n/a"
-    if importlib.util.find_spec("pytorch3d") is None:
-        training += " (EDGE's training loss needs pytorch3d, which is not installed)"
-    print(f"sampling_speedup_vs_edge={edge / best['dgsdp default']:.2f} training_speedup_vs_edge={training}")
+    best: dict[str, float] = {}
+    sampling = training = "n/a"
+    setting = f"size {args.size}, {args.features}-d features, {torch.get_num_threads()} threads"
+    if "sampling" in args.parts:
+        times = run_sampling(
+            args.edge_src, size=args.size, features=args.features, seconds=args.seconds, repeats=args.repeats
+        )
+        print(f"sampling: {setting}, {args.seconds:g} s song, {args.repeats} interleaved repeats; fastest of each (s):")
+        best.update(_print_times(times))
+        edge = best["edge long_ddim_sample"]
+        for name in times:
+            if name.startswith("dgsdp"):
+                print(f"  {name} vs EDGE's code: {edge / best[name]:.2f}x")
+        sampling = f"{edge / best['dgsdp default']:.2f}"
+    if "training" in args.parts:
+        if importlib.util.find_spec("pytorch3d") is None:
+            print("training: n/a: EDGE's training loss imports pytorch3d, which is not importable; its rotation code is "
+                  "pure Python, so a checkout of facebookresearch/pytorch3d on PYTHONPATH serves")  # fmt: skip
+        else:
+            times = run_training(
+                args.edge_src, size=args.size, features=args.features, batch=args.batch, repeats=args.repeats
+            )
+            print(f"training: {setting}, batch {args.batch}, {args.repeats} interleaved repeats after a warm-up; "
+                  "seconds per step, fastest of each:")  # fmt: skip
+            best.update(_print_times(times))
+            for precision in PRECISIONS:
+                ratio = best[f"edge {precision}"] / best[f"dgsdp {precision}"]
+                print(f"  {precision}: dgsdp vs EDGE's code {ratio:.2f}x")
+            edge = min(best[f"edge {p}"] for p in PRECISIONS)
+            ours = min(best[f"dgsdp {p}"] for p in PRECISIONS)
+            print(f"  fastest against fastest: EDGE {edge:.2f} s, dgsdp {ours:.2f} s per step")
+            training = f"{edge / ours:.2f}"
+    print(f"sampling_speedup_vs_edge={sampling} training_speedup_vs_edge={training}")
     return best
 
 

@@ -64,7 +64,8 @@ class _StandIn(types.ModuleType):
 
 @contextmanager
 def edge_code(edge_src: str | Path) -> Iterator[tuple[dict[str, Any], list[str]]]:
-    """EDGE's classes imported from ``edge_src`` (DanceDecoder, GaussianDiffusion, Normalizer, MinMaxScaler), with
+    """EDGE's classes imported from ``edge_src`` (DanceDecoder, GaussianDiffusion, Normalizer, MinMaxScaler,
+    SMPLSkeleton, Adan), with
     stand-ins for the rendering-only modules that are not installed. sys.path and sys.modules are restored."""
     root = Path(edge_src).expanduser().resolve()
     if not (root / "model" / "model.py").is_file() or not (root / "model" / "diffusion.py").is_file():
@@ -90,6 +91,8 @@ def edge_code(edge_src: str | Path) -> Iterator[tuple[dict[str, Any], list[str]]
             "GaussianDiffusion": importlib.import_module("model.diffusion").GaussianDiffusion,
             "Normalizer": importlib.import_module("dataset.preprocess").Normalizer,
             "MinMaxScaler": importlib.import_module("dataset.scaler").MinMaxScaler,
+            "SMPLSkeleton": importlib.import_module("vis").SMPLSkeleton,  # the FK of its training loss
+            "Adan": importlib.import_module("model.adan").Adan,  # its optimiser
         }
         yield classes, stand_ins
     finally:
@@ -112,9 +115,11 @@ def edge_model(
     n_heads: int,
     feature_dim: int,
     guidance: float,
+    smpl: Any = None,
 ) -> tuple[torch.nn.Module, torch.nn.Module]:
     """EDGE's own DanceDecoder (random weights, eval mode) and the GaussianDiffusion around it, built as EDGE.py
-    builds them (classes from :func:`edge_code`)."""
+    builds them (classes from :func:`edge_code`). ``smpl``: the SMPLSkeleton its training loss runs FK with
+    (sampling needs none)."""
     decoder = edge_classes["DanceDecoder"](
         nfeats=151,
         seq_len=seq_len,
@@ -130,7 +135,7 @@ def edge_model(
         decoder,
         seq_len,
         151,
-        None,
+        smpl,
         schedule="cosine",
         n_timestep=1000,
         predict_epsilon=False,
