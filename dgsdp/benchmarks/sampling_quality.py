@@ -18,6 +18,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -31,33 +32,51 @@ COLUMNS = [("FID_k", "FID_k"), ("FID_g", "FID_g"), ("Div_k", "Div_k"), ("Div_g",
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def parse_setting(text: str) -> tuple[str, int, float | None]:
-    """``<method>-<steps>`` or ``ddim-<steps>-eta<eta>`` (e.g. ``ddim-50-eta0``) -> (method, steps, eta)."""
-    parts = text.split("-")
-    if len(parts) not in (2, 3) or (len(parts) == 3 and not parts[2].startswith("eta")):
-        raise ValueError(f"setting {text!r}: use <method>-<steps> or ddim-<steps>-eta<eta>, e.g. dpmpp_2m-10")
-    check_method(parts[0])
-    return parts[0], int(parts[1]), float(parts[2][3:]) if len(parts) == 3 else None
+@dataclass(frozen=True)
+class Setting:
+    method: str
+    steps: int
+    eta: float | None = None
+    bf16: bool = False
+
+    def overrides(self) -> list[str]:
+        """evaluate.py's sampling overrides for this setting."""
+        out = [f"sampling.method={self.method}", f"sampling.steps={self.steps}"]
+        if self.eta is not None:
+            out.append(f"sampling.eta={self.eta}")
+        return out + (["sampling.bf16=true"] if self.bf16 else [])
 
 
-def evaluate_setting(
-    checkpoint: str, method: str, steps: int, eta: float | None, out_dir: Path, overrides: list[str]
-) -> dict:
+def parse_setting(text: str) -> Setting:
+    """``<method>-<steps>``, optionally ``-eta<eta>`` (DDIM) and ``-bf16`` (bf16 autocast), e.g. ``ddim-50-eta0``
+    or ``dpmpp_2m-10-bf16``."""
+    method, *rest = text.split("-")
+    try:
+        steps = int(rest.pop(0))
+        eta = float(rest.pop(0)[3:]) if rest and rest[0].startswith("eta") else None
+        bf16 = rest == ["bf16"]
+        if rest and not bf16:
+            raise ValueError
+    except (IndexError, ValueError):
+        raise ValueError(
+            f"setting {text!r}: use <method>-<steps>[-eta<eta>][-bf16], e.g. dpmpp_2m-10 or dpmpp_2m-10-bf16"
+        ) from None
+    check_method(method)
+    return Setting(method, steps, eta, bf16)
+
+
+def evaluate_setting(checkpoint: str, setting: Setting, out_dir: Path, overrides: list[str]) -> dict:
     """Run evaluate.py (a subprocess: its command line is the stable interface) and return its results.json."""
     cmd = [sys.executable, str(ROOT / "evaluate.py"), f"checkpoint={checkpoint}", "protocol=table1",
-           f"sampling.method={method}", f"sampling.steps={steps}", "protocol.guidance_weights=[2.0]",
-           "progress=false", "logger=none", f"hydra.run.dir={out_dir}", *overrides]  # fmt: skip
-    if eta is not None:
-        cmd.append(f"sampling.eta={eta}")
+           *setting.overrides(), "protocol.guidance_weights=[2.0]", "progress=false", "logger=none",
+           f"hydra.run.dir={out_dir}", *overrides]  # fmt: skip
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
-        raise RuntimeError(f"evaluate.py failed for {method}-{steps}:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+        raise RuntimeError(f"evaluate.py failed for {setting}:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
     return json.loads(next(out_dir.rglob("results.json")).read_text())
 
 
-def time_setting(
-    checkpoint: str, method: str, steps: int, eta: float | None, *, clips: int, seconds: float = 5.0
-) -> float:
+def time_setting(checkpoint: str, setting: Setting, *, clips: int, seconds: float = 5.0) -> float:
     """Seconds of sampling compute per second of dance for one batch of ``clips`` clips (guidance w = 2)."""
     from dgsdp.generation import DanceGenerator, DanceRequest
     from dgsdp.sampling import GuidanceSettings, SamplingSettings
@@ -78,8 +97,8 @@ def time_setting(
         for i in range(clips)
     ]
     settings = SamplingSettings(
-        method=method, steps=steps, eta=1.0 if eta is None else eta, guidance=GuidanceSettings(music=2.0),
-        batch_size=clips,
+        method=setting.method, steps=setting.steps, eta=1.0 if setting.eta is None else setting.eta,
+        guidance=GuidanceSettings(music=2.0), batch_size=clips, bf16=setting.bf16,
     )  # fmt: skip
     start = time.perf_counter()
     generator.generate_many(requests, settings)
@@ -105,7 +124,7 @@ def write_table(path: Path, rows: list[tuple[str, dict, float]], header: str) ->
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", required=True)
-    parser.add_argument("--settings", nargs="+", default=DEFAULT_SETTINGS, help="<method>-<steps> each")
+    parser.add_argument("--settings", nargs="+", default=DEFAULT_SETTINGS, help="<method>-<steps>[-bf16] each")
     parser.add_argument("--trials", type=int, default=3, help="trials (seeds) per setting")
     parser.add_argument("--clips-per-trial", type=int, default=None, help="clips per trial (default: every clip)")
     parser.add_argument("--timing-clips", type=int, default=10, help="clips in the timed batch")
@@ -119,8 +138,8 @@ def main(argv: list[str] | None = None) -> None:
     if args.timing_only:
         times: dict[str, list[float]] = {text: [] for text in args.settings}
         for _ in range(args.timing_only):
-            for text, (method, steps, eta) in zip(args.settings, settings, strict=True):
-                times[text].append(time_setting(args.checkpoint, method, steps, eta, clips=args.timing_clips))
+            for text, setting in zip(args.settings, settings, strict=True):
+                times[text].append(time_setting(args.checkpoint, setting, clips=args.timing_clips))
         for text, ts in times.items():
             print(f"{text}: {statistics.median(ts):.4f} s per s of dance (median of {len(ts)})", flush=True)
         return
@@ -131,12 +150,12 @@ def main(argv: list[str] | None = None) -> None:
     header = (f"Checkpoint `{Path(args.checkpoint).name}`, protocol table1 (5 s clips, guidance w = 2), "
               f"{args.trials} trials (seeds), overrides: {' '.join(overrides)}")  # fmt: skip
     rows = []
-    for text, (method, steps, eta) in zip(args.settings, settings, strict=True):
-        name = text if eta is None else f"{method}-{steps} eta={eta:g}"
+    for text, setting in zip(args.settings, settings, strict=True):
+        name = text
         start = time.perf_counter()
-        results = evaluate_setting(args.checkpoint, method, steps, eta, work / text, overrides)
+        results = evaluate_setting(args.checkpoint, setting, work / text, overrides)
         row = next(r for r in results["rows"] if r["kind"] == "generated")
-        sps = time_setting(args.checkpoint, method, steps, eta, clips=args.timing_clips)
+        sps = time_setting(args.checkpoint, setting, clips=args.timing_clips)
         rows.append((name, row["metrics"], sps))
         write_table(Path(args.out), rows, header)
         print(f"{name}: {time.perf_counter() - start:.0f} s, {sps:.3f} s per s of dance", flush=True)

@@ -36,7 +36,8 @@ class SamplingSettings:
     predictions at every step; ``edge``: EDGE's overwrite of each window's first half by its neighbour after every
     step but the last; see :mod:`dgsdp.generation.longform`). clip_x0: the bound of x0 predictions in normalised
     units (None: the run's ``diffusion.clip_x0``; the papers: 1). chunk_size > 0: at most this many windows per
-    denoiser call (memory). batch_size: independent dances sampled together. bf16: autocast on CUDA."""
+    denoiser call (memory). batch_size: independent dances sampled together. bf16: bf16 autocast (on CUDA, or on a
+    CPU with native bf16 instructions, AVX512-BF16 or AMX, where it is faster; docs/sampling.md)."""
 
     # The defaults of the sampling config group (conf/sampling/dpmpp_2m.yaml names this class as its schema and
     # writes no value of its own): the one place they are written. docs/sampling.md says why these.
