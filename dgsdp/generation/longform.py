@@ -172,7 +172,9 @@ class ChunkedDenoiser(nn.Module):
             return [slice(0, b)]
         return [slice(i, i + self.chunk_size) for i in range(0, b, self.chunk_size)]
 
-    def condition(self, music, style, keep_music, keep_style, *, n_frames: int, batch: int) -> list | None:
+    def condition(
+        self, music, style, keep_music, keep_style, *, n_frames: int, batch: int, music_rows=None
+    ) -> list | None:
         inner = getattr(self.denoiser, "condition", None)
         if inner is None:
             return None
@@ -182,12 +184,13 @@ class ChunkedDenoiser(nn.Module):
 
         return [
             inner(
-                part(music, sl),
+                music if music_rows is not None else part(music, sl),  # rows named by music_rows: all of it
                 part(style, sl),
                 part(keep_music, sl),
                 part(keep_style, sl),
                 n_frames=n_frames,
                 batch=len(range(batch)[sl]),
+                music_rows=part(music_rows, sl),
             )  # fmt: skip
             for sl in self._slices(batch)
         ]

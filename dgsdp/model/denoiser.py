@@ -241,6 +241,7 @@ class DanceDenoiser(nn.Module):
         n: int,
         *,
         project_kept_only: bool = False,
+        music_rows: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """Music tokens (B, n, d), the pooled music vector (B, d) and the style after dropout.
         ``project_kept_only`` (nulls at the encoder's input): run ``music_proj`` on the rows whose music is kept
@@ -250,15 +251,17 @@ class DanceDenoiser(nn.Module):
         null = self.null_music[:, :n].expand(b, -1, -1)
         if music is None or self.music_proj is None:
             music, keep_music = None, torch.zeros_like(keep_music)
-        elif music.shape[:2] != (b, n) or music.shape[-1] != self.audio_dim:
+        elif (music.shape[0] if music_rows is None else music_rows.shape[0], music.shape[1]) != (b, n) or (
+            music.shape[-1] != self.audio_dim
+        ):
             raise ValueError(f"music features {tuple(music.shape)} do not match ({b}, {n}, {self.audio_dim})")
         if self.null_music_at == "output":
-            return self._music_kept_rows(music, style, keep_music, keep_style, null)
+            return self._music_kept_rows(music, style, keep_music, keep_style, null, music_rows)
         if music is None:
             h_music = null
         elif project_kept_only:
             rows = keep_music.nonzero().squeeze(1)
-            projected = self.music_proj(music[rows])
+            projected = self.music_proj(music[rows if music_rows is None else music_rows[rows]])
             h_music = null.to(projected.dtype).clone(memory_format=torch.contiguous_format)
             h_music.index_copy_(0, rows, projected)
         else:
@@ -277,6 +280,7 @@ class DanceDenoiser(nn.Module):
         keep_music: torch.Tensor,
         keep_style: torch.Tensor,
         null: torch.Tensor,
+        music_rows: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """:meth:`_music` with the null tokens after the encoder (EDGE): the encoder and the pooling run on the rows
         whose music is kept only (the other rows' results would be replaced by the nulls; one host sync to find
@@ -286,7 +290,7 @@ class DanceDenoiser(nn.Module):
         rows = keep_music.nonzero().squeeze(1)
         if music is None or rows.numel() == 0:
             return null, self.null_music_hidden.expand(b, -1), s
-        h_music = self.music_proj(music[rows])
+        h_music = self.music_proj(music[rows if music_rows is None else music_rows[rows]])
         if self.style_concat_proj is not None:
             h_style = self.style_concat_proj(s[rows])
             h_music = h_music + (h_style if h_style.ndim == 3 else h_style[:, None, :])
@@ -306,12 +310,15 @@ class DanceDenoiser(nn.Module):
         *,
         n_frames: int | None = None,
         batch: int | None = None,
+        music_rows: torch.Tensor | None = None,
     ) -> DenoiserCondition:
         """The conditioning of ``forward(x_t, t, cond=...)`` for music (B, T, Da) and style, computed once for a
         whole sampling run: music encoder, pooled music, style, and the cross-attention keys and values of the
-        music tokens. The rows' batch and length come from the music (or from ``batch`` / ``n_frames``)."""
+        music tokens. The rows' batch and length come from the music (or from ``batch`` / ``n_frames``).
+        ``music_rows`` (B,): row i hears ``music[music_rows[i]]`` (a run's music repeated over the guidance
+        passes without a copy of it; for a 5-minute song at 4800-d that copy was 0.7 GB)."""
         if music is not None:
-            batch, n_frames = music.shape[0], music.shape[1]
+            batch, n_frames = music.shape[0] if music_rows is None else music_rows.shape[0], music.shape[1]
         if batch is None:
             batch = keep_music.shape[0] if keep_music is not None else style.shape[0] if style is not None else None
         if batch is None or n_frames is None:
@@ -321,7 +328,9 @@ class DanceDenoiser(nn.Module):
         device = self.null_music.device
         keep_music = self._keep(keep_music, batch, device)
         keep_style = self._keep(keep_style, batch, device)
-        tokens, pooled, s = self._music(music, style, keep_music, keep_style, n_frames, project_kept_only=True)
+        tokens, pooled, s = self._music(
+            music, style, keep_music, keep_style, n_frames, project_kept_only=True, music_rows=music_rows
+        )
         memory = self.memory_norm(tokens)  # LayerNorm is per token: the time tokens are normalised per step
         aligned = self._aligned(memory)
         keys, values = [], []

@@ -104,13 +104,16 @@ class PreparedCondition:
 
         keep_music = torch.tensor([p[0] for p in passes], device=self.device).repeat_interleave(b)
         keep_style = torch.tensor([p[1] for p in passes], device=self.device).repeat_interleave(b)
-        music, style = rep(self.cond.music), rep(self.cond.style)
+        style = rep(self.cond.style)
         condition = getattr(self.denoiser, "condition", None)
-        cached = None
         if condition is not None:
-            cached = condition(music, style, keep_music, keep_style, n_frames=self.n_frames, batch=k * b)
-        if cached is not None:
-            return {"cond": cached}
+            # the music is not repeated over the passes: each row names its row of the run's music
+            rows = torch.arange(b, device=self.device).repeat(k) if self.cond.music is not None else None
+            cached = condition(self.cond.music, style, keep_music, keep_style, n_frames=self.n_frames, batch=k * b,
+                               music_rows=rows)  # fmt: skip
+            if cached is not None:
+                return {"cond": cached}
+        music = rep(self.cond.music)
         return {"music": music, "style": style, "keep_music": keep_music, "keep_style": keep_style}
 
 

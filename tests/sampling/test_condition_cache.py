@@ -99,3 +99,24 @@ def test_cached_sampling_equals_the_per_step_path(method, style_guidance, chunk_
         for d in (cached, plain)
     ]
     torch.testing.assert_close(outs[0], outs[1], atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("null_music", ["input", "output"])
+@pytest.mark.parametrize("chunk_size", [0, 4])
+def test_music_named_by_rows_equals_the_music_repeated(null_music, chunk_size):
+    """condition(music, ..., music_rows=r) hears music[r[i]] in row i: the same as the music repeated over the
+    guidance passes (what the sampler did before, with a copy of the run's music per pass)."""
+    model = ChunkedDenoiser(tiny_denoiser("modulation", null_music=null_music), chunk_size)
+    b, n = 3, 20
+    music, style = torch.randn(b, n, 7), torch.randn(2 * b, 6)
+    keep_music = torch.tensor([False] * b + [True] * b)
+    keep = torch.ones(2 * b, dtype=torch.bool)
+    x, t = torch.randn(2 * b, n, 151), torch.full((2 * b,), 400)
+    repeated = model.condition(music.repeat(2, 1, 1), style, keep_music, keep, n_frames=n, batch=2 * b)
+    rows = torch.arange(b).repeat(2)
+    named = model.condition(music, style, keep_music, keep, n_frames=n, batch=2 * b, music_rows=rows)
+    expected = model(x, t, cond=repeated)
+    torch.testing.assert_close(model(x, t, cond=named), expected)
+    # another row order hears other music: the rows are used, not ignored
+    shuffled = model.condition(music, style, keep_music, keep, n_frames=n, batch=2 * b, music_rows=rows.flip(0))
+    assert not torch.allclose(model(x, t, cond=shuffled)[b:], expected[b:])
