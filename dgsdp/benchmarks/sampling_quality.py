@@ -151,14 +151,13 @@ def main(argv: list[str] | None = None) -> None:
               f"{args.trials} trials (seeds), overrides: {' '.join(overrides)}")  # fmt: skip
     rows = []
     for text, setting in zip(args.settings, settings, strict=True):
-        name = text
         start = time.perf_counter()
         results = evaluate_setting(args.checkpoint, setting, work / text, overrides)
         row = next(r for r in results["rows"] if r["kind"] == "generated")
         sps = time_setting(args.checkpoint, setting, clips=args.timing_clips)
-        rows.append((name, row["metrics"], sps))
+        rows.append((text, row["metrics"], sps))
         write_table(Path(args.out), rows, header)
-        print(f"{name}: {time.perf_counter() - start:.0f} s, {sps:.3f} s per s of dance", flush=True)
+        print(f"{text}: {time.perf_counter() - start:.0f} s, {sps:.3f} s per s of dance", flush=True)
 
 
 if __name__ == "__main__":

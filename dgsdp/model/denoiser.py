@@ -123,6 +123,12 @@ class DecoderLayer(nn.Module):
         return x + self.film3(self.drop(self.ff(self.norm3(x))), t_cond)
 
 
+def _rows_of(music: torch.Tensor, rows: torch.Tensor, music_rows: torch.Tensor | None) -> torch.Tensor:
+    """The music features of batch rows ``rows``: ``music[rows]``, or ``music[music_rows[rows]]`` when
+    ``music_rows`` names each row's music (see :meth:`DanceDenoiser.condition`)."""
+    return music[rows if music_rows is None else music_rows[rows]]
+
+
 class DanceDenoiser(nn.Module):
     """Predicts x0 from (x_t, t, music, style). All sizes come from config (``conf/model``)."""
 
@@ -261,17 +267,21 @@ class DanceDenoiser(nn.Module):
             h_music = null
         elif project_kept_only:
             rows = keep_music.nonzero().squeeze(1)
-            projected = self.music_proj(music[rows if music_rows is None else music_rows[rows]])
+            projected = self.music_proj(_rows_of(music, rows, music_rows))
             h_music = null.to(projected.dtype).clone(memory_format=torch.contiguous_format)
             h_music.index_copy_(0, rows, projected)
         else:
             h_music = torch.where(keep_music[:, None, None], self.music_proj(music), null)
         s = self._style(style, keep_style, b)
-        if self.style_concat_proj is not None:
-            h_style = self.style_concat_proj(s)
-            h_music = h_music + (h_style if h_style.ndim == 3 else h_style[:, None, :])
-        tokens = self._run(self.music_encoder, h_music)
+        tokens = self._run(self.music_encoder, self._with_style(h_music, s))
         return tokens, self.music_pool(tokens.mean(dim=1)), s
+
+    def _with_style(self, h_music: torch.Tensor, s: torch.Tensor | None) -> torch.Tensor:
+        """The music tokens with the projected style added (concat injection), else as they are."""
+        if self.style_concat_proj is None:
+            return h_music
+        h_style = self.style_concat_proj(s)
+        return h_music + (h_style if h_style.ndim == 3 else h_style[:, None, :])
 
     def _music_kept_rows(
         self,
@@ -290,11 +300,8 @@ class DanceDenoiser(nn.Module):
         rows = keep_music.nonzero().squeeze(1)
         if music is None or rows.numel() == 0:
             return null, self.null_music_hidden.expand(b, -1), s
-        h_music = self.music_proj(music[rows if music_rows is None else music_rows[rows]])
-        if self.style_concat_proj is not None:
-            h_style = self.style_concat_proj(s[rows])
-            h_music = h_music + (h_style if h_style.ndim == 3 else h_style[:, None, :])
-        kept = self._run(self.music_encoder, h_music)
+        h_music = self.music_proj(_rows_of(music, rows, music_rows))
+        kept = self._run(self.music_encoder, self._with_style(h_music, None if s is None else s[rows]))
         pooled_kept = self.music_pool(kept.mean(dim=1))
         tokens = null.to(kept.dtype).clone(memory_format=torch.contiguous_format)
         pooled = self.null_music_hidden.expand(b, -1).to(pooled_kept.dtype).clone(memory_format=torch.contiguous_format)
