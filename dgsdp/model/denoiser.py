@@ -116,11 +116,16 @@ class DecoderLayer(nn.Module):
         memory_kv: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> torch.Tensor:
         """``memory`` (B, S, d), or its cross-attention keys and values ``memory_kv`` computed earlier."""
-        x = x + self.film1(self.drop(self.self_attn(self.norm1(x))), t_cond)
-        x = x + self.film2(self.drop(self.cross_attn(self.norm2(x), memory, kv=memory_kv)), t_cond)
+        x = x + self._film(self.film1, self.self_attn(self.norm1(x)), t_cond)
+        x = x + self._film(self.film2, self.cross_attn(self.norm2(x), memory, kv=memory_kv), t_cond)
         if modulation is not None and style is not None:
             x = modulation(x, style)
-        return x + self.film3(self.drop(self.ff(self.norm3(x))), t_cond)
+        return x + self._film(self.film3, self.ff(self.norm3(x)), t_cond)
+
+    def _film(self, film: FiLM, h: torch.Tensor, t_cond: torch.Tensor) -> torch.Tensor:
+        """``film(dropout(h))``, the dropout's scale applied in FiLM's (see :func:`dropout_mask`)."""
+        zeroed, factor = self.drop.mask(h)
+        return film(zeroed, t_cond, factor)
 
 
 def _rows_of(music: torch.Tensor, rows: torch.Tensor, music_rows: torch.Tensor | None) -> torch.Tensor:

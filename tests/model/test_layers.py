@@ -1,4 +1,5 @@
-"""The denoiser's building blocks: the CPU dropout mask, and attention's training and fused self-attention paths."""
+"""The denoiser's building blocks: rotary positions, the CPU dropout mask, and attention's training and fused
+self-attention paths."""
 
 import math
 
@@ -6,7 +7,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from dgsdp.model.layers import Attention, Dropout, dropout
+from dgsdp.model.layers import Attention, Dropout, RotaryEmbedding, dropout
 
 KEPT_SCALE = 65536 / (65536 - 6554)  # p = 0.1 drops 6554 of the 65536 16-bit values
 
@@ -73,3 +74,39 @@ def test_self_attention_without_rotary_matches_reference():
     weights = torch.softmax(q @ k.transpose(-1, -2) / math.sqrt(8), dim=-1)
     expected = attn.out((weights @ v).transpose(1, 2).reshape(2, 10, 32))
     assert torch.allclose(attn(x), expected, atol=1e-5)
+
+
+def _rotated_by_hand(x: torch.Tensor, start: int) -> torch.Tensor:
+    """Each pair (x1, x2) of channels at position p turned by p * 10000^(-2i/D), in float64."""
+    x = x.double()
+    d = x.shape[-1]
+    angle = torch.arange(start, start + x.shape[-2], dtype=torch.float64)[:, None] * 10000.0 ** (
+        -torch.arange(0, d, 2, dtype=torch.float64) / d
+    )
+    x1, x2 = x[..., 0::2], x[..., 1::2]
+    out = torch.empty_like(x)
+    out[..., 0::2] = x1 * angle.cos() - x2 * angle.sin()
+    out[..., 1::2] = x1 * angle.sin() + x2 * angle.cos()
+    return out
+
+
+@pytest.mark.parametrize("dtype,tol", [(torch.float32, 1e-5), (torch.float64, 1e-5), (torch.bfloat16, 5e-2)])
+@pytest.mark.parametrize("start", [0, 7])
+def test_rotary_turns_each_pair_by_its_angle(dtype, tol, start):
+    """float32/64 go through the complex product, bf16 through the real formula (the angles are float32 in every
+    case); both turn the pairs, also on a per-head view (not contiguous) and from a start position."""
+    torch.manual_seed(5)
+    rotary = RotaryEmbedding(16)
+    x = torch.randn(2, 12, 3, 16).transpose(1, 2).to(dtype)  # (B, H, T, Dh) view of (B, T, H, Dh)
+    for mode in (rotary.train(), rotary.eval(), rotary.eval()):  # the eval tables are cached on the second call
+        assert torch.allclose(mode(x, start).double(), _rotated_by_hand(x, start), atol=tol)
+
+
+def test_rotary_gradient_is_the_inverse_turn():
+    torch.manual_seed(6)
+    rotary = RotaryEmbedding(16).train()
+    x = torch.randn(3, 10, 16, requires_grad=True)
+    g = torch.randn(3, 10, 16)
+    rotary(x).backward(g)
+    # a rotation's transpose is its inverse: turning the gradient back gives back x's turn of g's length
+    assert torch.allclose(_rotated_by_hand(x.grad, 0), g.double(), atol=1e-5)
