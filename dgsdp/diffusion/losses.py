@@ -5,6 +5,10 @@
 - fk: MSE of FK joint positions (metres, z-up).
 - foot: FK velocity of joints 7, 8, 10, 11 pushed to zero where the model's own predicted contact is above the
   threshold.
+- pause (in neither paper; weight 0 = off): the velocity term's error again, weighted per frame by how still the
+  true motion is there, ``relu(1 - speed / window mean speed)`` (speed: the mean absolute first difference of the
+  147 channels), so that moving where the training dance holds still costs more. Training dances hold still on
+  the beat; the term is a recipe choice for teaching a short run where to pause (docs/benchmarks.md).
 
 FK runs on unnormalised values (the normaliser is passed in), so the FK and foot terms are in metres. EDGE runs
 FK on normalised values; its author reported no difference. Unnormalising keeps the joint positions physical.
@@ -28,6 +32,7 @@ class LossWeights:
     fk: float = 0.646
     foot: float = 10.942
     contact_threshold: float = 0.95
+    pause: float = 0.0
 
 
 def dance_loss(
@@ -36,9 +41,12 @@ def dance_loss(
     """Loss terms for predicted and true x0 (B, T, 151), normalised. Returns each term and ``loss`` (weighted sum)."""
     terms: dict[str, torch.Tensor] = {"simple": F.mse_loss(pred_x0, x0)}
     motion = slice(CONTACT_CHANNELS.stop, None)
-    terms["velocity"] = F.mse_loss(
-        pred_x0[:, 1:, motion] - pred_x0[:, :-1, motion], x0[:, 1:, motion] - x0[:, :-1, motion]
-    )
+    pred_vel, true_vel = pred_x0[:, 1:, motion] - pred_x0[:, :-1, motion], x0[:, 1:, motion] - x0[:, :-1, motion]
+    terms["velocity"] = F.mse_loss(pred_vel, true_vel)
+    if weights.pause:
+        speed = true_vel.abs().mean(dim=-1)  # (B, T - 1)
+        stillness = (1 - speed / speed.mean(dim=1, keepdim=True).clamp_min(1e-8)).clamp_min(0)
+        terms["pause"] = (stillness[..., None] * (pred_vel - true_vel).square()).mean()
     if weights.fk or weights.foot:
         pred_parts = unpack_pose(normalizer.unnormalize(pred_x0))
         pred_joints = pred_parts.joints()

@@ -153,3 +153,20 @@ def test_loss_is_differentiable_in_the_prediction(normalizer):
     x0 = normalizer.normalize(motion(trans))
     dance_loss(pred, x0, normalizer, LossWeights())["loss"].backward()
     assert torch.isfinite(pred.grad).all() and pred.grad[..., 4:7].abs().sum() > 0
+
+
+def test_pause_term_weights_the_velocity_error_by_the_true_motion_stillness():
+    """Three steps of the true motion: still (weight 1), at the window's mean speed and at twice it (weight 0)."""
+    torch.manual_seed(7)
+    x0 = torch.zeros(1, 4, 151)
+    # true steps of the 147 motion channels: 0 (still), 0.3, 0.6 -> speeds 0, 0.3, 0.6; window mean 0.3
+    x0[:, 2, 4:] = 0.3
+    x0[:, 3, 4:] = 0.9
+    pred = x0 + 0.1 * torch.randn(1, 4, 151)
+    err = ((pred[:, 1:, 4:] - pred[:, :-1, 4:]) - (x0[:, 1:, 4:] - x0[:, :-1, 4:])).square().mean(dim=-1)  # (1, 3)
+    stillness = torch.tensor([1.0, 0.0, 0.0])  # relu(1 - speed / 0.3)
+    expected = (stillness * err).sum() / 3
+    terms = dance_loss(pred, x0, None, only("pause"))
+    assert torch.allclose(terms["pause"], expected, atol=1e-7)
+    assert torch.allclose(terms["loss"], expected, atol=1e-7)
+    assert "pause" not in dance_loss(pred, x0, None, only("velocity"))  # off (weight 0): not computed

@@ -12,12 +12,14 @@ from dgsdp.training import DanceDiffusion
 
 EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
 # the quick start's ablation (sweeps/quickstart.yaml): small model, one change per row;
-# row: (velocity loss weight, audio.rhythm_only, audio.beat_phase)
+# row: (velocity loss weight, audio.rhythm_only, audio.beat_phase, steps, pause loss weight)
 QUICKSTART_ROWS = {
-    "quickstart_row0": (0.0, False, False),
-    "quickstart_row1": (2.964, False, False),
-    "quickstart_row2": (2.964, True, False),
-    "quickstart_row3": (2.964, True, True),
+    "quickstart_row0": (0.0, False, False, 500, 0.0),
+    "quickstart_row1": (2.964, False, False, 500, 0.0),
+    "quickstart_row2": (2.964, True, False, 500, 0.0),
+    "quickstart_row3": (2.964, True, True, 500, 0.0),
+    "quickstart_row4": (2.964, True, False, 1000, 0.0),
+    "quickstart_row5": (2.964, True, False, 1000, 6.0),
 }
 PAPER_SIZE = [name for name in EXPERIMENTS if name not in QUICKSTART_ROWS]
 PAPER_ROWS = {
@@ -77,19 +79,27 @@ def test_quickstart_rows_change_one_thing_each(name, tmp_path):
     from dgsdp.quickstart import QUICKSTART_TRAINING
 
     cfg = compose_config("train", [f"experiment={name}"], output_dir=tmp_path)
-    velocity, rhythm_only, beat_phase = QUICKSTART_ROWS[name]
-    assert (cfg.loss.velocity, cfg.audio.rhythm_only, cfg.audio.beat_phase) == (velocity, rhythm_only, beat_phase)
+    row = QUICKSTART_ROWS[name]
+    assert (
+        cfg.loss.velocity,
+        cfg.audio.rhythm_only,
+        cfg.audio.beat_phase,
+        cfg.trainer.max_steps,
+        cfg.loss.pause,
+    ) == row
     assert cfg.loss.simple == 1.0 and cfg.loss.fk == 0.0 and cfg.loss.foot == 0.0
-    assert (cfg.trainer.max_steps, cfg.optimizer.lr, cfg.model.ema_decay) == (500, 1e-3, 0.98)
+    assert (cfg.optimizer.lr, cfg.model.ema_decay) == (1e-3, 0.98)
     assert cfg.run_name == name and cfg.model.d_model == compose_config("train", []).model.d_model  # small model
     spec = RunSpec.from_config(
         cfg, audio_encoder=audio_encoder_from_config(cfg), style_embedder=style_embedder_from_config(cfg),
         style_bank_size=0, groups={},
     )  # fmt: skip
-    assert spec.conditioning.audio_dim == 35 + 2 * beat_phase
-    # the quick start trains row 2
+    assert spec.conditioning.audio_dim == 35 + 2 * cfg.audio.beat_phase
+    # the quick start trains row 5
     quick = compose_config("train", list(QUICKSTART_TRAINING), output_dir=tmp_path)
-    assert (quick.loss.velocity, quick.audio.rhythm_only, quick.audio.beat_phase) == QUICKSTART_ROWS["quickstart_row2"]
+    assert (
+        quick.loss.velocity, quick.audio.rhythm_only, quick.audio.beat_phase, quick.trainer.max_steps, quick.loss.pause
+    ) == QUICKSTART_ROWS["quickstart_row5"]  # fmt: skip
 
 
 def test_edge_parameter_count_matches_paper(tmp_path):
