@@ -6,7 +6,9 @@ EDGE's ``DanceDecoder``, ``GaussianDiffusion``, ``SMPLSkeleton`` and ``Adan`` ar
 Sampling: the same weights go into dgsdp's denoiser (the EDGE import's mapping). One song of ``--seconds`` of random
 music features is danced by EDGE's ``long_ddim_sample`` (DDIM-50, guidance 2 with its ramp, its half-window
 overwrite) and by dgsdp with the project's default sampling, with ``sampling=edge``, and with the default under bf16
-autocast at 10 and at 5 steps (``sampling.bf16=true``, ``sampling.steps=5``).
+autocast at 10 and at 5 steps (``sampling.bf16=true``, ``sampling.steps=5``); and by a guidance-distilled student of
+the same size (``train.py distill.teacher=...``: one denoiser pass per step instead of two) with the default, 5 steps
+and bf16.
 
 Training: one step at ``--batch`` random 5 s windows, as EDGE's ``train_loop`` runs it (its loss with the velocity,
 FK and foot terms, backward, Adan step, EMA update) against dgsdp's ``experiment=edge`` model and loss (the same
@@ -16,12 +18,15 @@ rotation code is pure Python, so a checkout of facebookresearch/pytorch3d on ``P
 pytorch3d the training figure is n/a.
 
 Repeats are interleaved and the fastest of each is compared. The last line is
-``sampling_speedup_vs_edge=<EDGE / dgsdp default> training_speedup_vs_edge=<EDGE's fastest / dgsdp's fastest>``.
+``sampling_speedup_vs_edge=<EDGE / dgsdp default> student_sampling_speedup_vs_edge=<EDGE / the student at 5 steps>
+training_speedup_vs_edge=<EDGE's fastest / dgsdp's fastest>``: the student's figure is its 5-step setting, the one
+docs/distillation.md measured against the default's quality.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.util
 import tempfile
 import time
@@ -36,12 +41,14 @@ from dgsdp.interop.edge.checkpoint import EdgeCheckpoint, EdgeScaler
 from dgsdp.interop.edge.convert import build_model
 from dgsdp.interop.edge.verify import edge_code, edge_model
 from dgsdp.sampling import SamplingSettings
+from dgsdp.trained import TrainedModel
 from dgsdp.trained.spec import RunSpec
 
 SIZES = {"paper": {"d": 512, "layers": 8, "ff": 1024}, "small": {"d": 64, "layers": 2, "ff": 128}}
 WINDOW, STRIDE = 150, 75
 EDGE_SWITCHES = {"rotary_placement": "input", "cross_attention_rotary": True, "null_music": "output"}
 PRECISIONS = ("fp32", "bf16")
+STUDENT_HEADLINE = "student 5 steps"  # the student's setting whose quality docs/distillation.md compares
 
 
 def identity_scaler() -> EdgeScaler:
@@ -59,14 +66,22 @@ def run_sampling(edge_src: str, *, size: str, features: int, seconds: float, rep
         theirs, diffusion = edge_model(edge, WINDOW, s["d"], s["ff"], s["layers"], 8, features, 2.0)
         state = theirs.state_dict()
         ours = build_model(EdgeCheckpoint(Path("random"), state, state, identity_scaler()))
-        generator = DanceGenerator(ours, cache_dir=tempfile.mkdtemp(prefix="dgsdp-bench-"))
-        presets = {
-            "dgsdp default": SamplingSettings(),
-            "dgsdp sampling=edge": SamplingSettings.from_config(compose_config("generate", ["sampling=edge"]).sampling),
-            # the CPU switches measured against the default (docs/benchmarks.md has their quality)
-            "dgsdp default, bf16": SamplingSettings(bf16=True),
-            "dgsdp 5 steps, bf16": SamplingSettings(steps=5, bf16=True),
+        cache = tempfile.mkdtemp(prefix="dgsdp-bench-")
+        models = {
+            "dgsdp": DanceGenerator(ours, cache_dir=cache),
+            "student": DanceGenerator(student_of(ours), cache_dir=cache),
         }
+        presets = {
+            "dgsdp default": ("dgsdp", SamplingSettings()),
+            "dgsdp sampling=edge": ("dgsdp", SamplingSettings.from_config(compose_config("generate", ["sampling=edge"]).sampling)),
+            # the CPU switches measured against the default (docs/benchmarks.md has their quality)
+            "dgsdp default, bf16": ("dgsdp", SamplingSettings(bf16=True)),
+            "dgsdp 5 steps, bf16": ("dgsdp", SamplingSettings(steps=5, bf16=True)),
+            # a guidance-distilled student (docs/distillation.md has its quality)
+            "student default": ("student", SamplingSettings()),
+            "student 5 steps": ("student", SamplingSettings(steps=5)),
+            "student default, bf16": ("student", SamplingSettings(bf16=True)),
+        }  # fmt: skip
         times: dict[str, list[float]] = {"edge long_ddim_sample": [], **{name: [] for name in presets}}
         music = torch.randn(layout.n_windows, WINDOW, features, generator=torch.Generator().manual_seed(1))
 
@@ -76,16 +91,27 @@ def run_sampling(edge_src: str, *, size: str, features: int, seconds: float, rep
                 diffusion.long_ddim_sample((layout.n_windows, WINDOW, 151), music)
             return time.perf_counter() - start
 
-        def time_ours(settings: SamplingSettings) -> float:
+        def time_ours(model: str, settings: SamplingSettings) -> float:
             start = time.perf_counter()
-            generator.generate(n_frames, music=music, sampling=settings, seed=0)
+            models[model].generate(n_frames, music=music, sampling=settings, seed=0)
             return time.perf_counter() - start
 
         for _ in range(repeats):
             times["edge long_ddim_sample"].append(time_edge())
-            for name, settings in presets.items():
-                times[name].append(time_ours(settings))
+            for name, (model, settings) in presets.items():
+                times[name].append(time_ours(model, settings))
     return times
+
+
+def student_of(model: TrainedModel) -> TrainedModel:
+    """A guidance-distilled student of ``model``'s architecture (its weights, the guidance projection at zero:
+    the speed of a trained one)."""
+    spec = dataclasses.replace(model.spec, model={**model.spec.model, "guidance_inputs": 1})
+    student = TrainedModel(spec, source="checkpoint")
+    missing, unexpected = student.load_state_dict(model.state_dict(), strict=False)
+    if unexpected or any("guidance_proj" not in k for k in missing):
+        raise RuntimeError(f"the student does not fit the model: missing {missing}, extra {unexpected}")
+    return student.eval()
 
 
 def run_training(edge_src: str, *, size: str, features: int, batch: int, repeats: int) -> dict[str, list[float]]:
@@ -162,7 +188,7 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     if args.threads:
         torch.set_num_threads(args.threads)
     best: dict[str, float] = {}
-    sampling = training = "n/a"
+    sampling = student = training = "n/a"
     setting = f"size {args.size}, {args.features}-d features, {torch.get_num_threads()} threads"
     if "sampling" in args.parts:
         times = run_sampling(
@@ -172,9 +198,10 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
         best.update(_print_times(times))
         edge = best["edge long_ddim_sample"]
         for name in times:
-            if name.startswith("dgsdp"):
+            if not name.startswith("edge"):
                 print(f"  {name} vs EDGE's code: {edge / best[name]:.2f}x")
         sampling = f"{edge / best['dgsdp default']:.2f}"
+        student = f"{edge / best[STUDENT_HEADLINE]:.2f}"
     if "training" in args.parts:
         if importlib.util.find_spec("pytorch3d") is None:
             print("training: n/a: EDGE's training loss imports pytorch3d, which is not importable; its rotation code is "
@@ -193,7 +220,10 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
             ours = min(best[f"dgsdp {p}"] for p in PRECISIONS)
             print(f"  fastest against fastest: EDGE {edge:.2f} s, dgsdp {ours:.2f} s per step")
             training = f"{edge / ours:.2f}"
-    print(f"sampling_speedup_vs_edge={sampling} training_speedup_vs_edge={training}")
+    print(
+        f"sampling_speedup_vs_edge={sampling} student_sampling_speedup_vs_edge={student} "
+        f"training_speedup_vs_edge={training}"
+    )
     return best
 
 

@@ -24,6 +24,14 @@ from dgsdp.errors import ConfigError
 from dgsdp.registry import build
 from dgsdp.trained import read_checkpoint
 from dgsdp.trained.spec import RunSpec
+from dgsdp.training.distill import (
+    DistillSettings,
+    GuidanceDistillation,
+    check_same_data,
+    check_student_spec,
+    load_teacher,
+    student_guidance_inputs,
+)
 from dgsdp.training.distributed import is_writer, log_files_on_writer_only
 from dgsdp.training.module import DanceDiffusion, wandb_run_id
 from dgsdp.training.resume import check_resume_has_work
@@ -58,6 +66,11 @@ def style_embedder_from_config(cfg: DictConfig) -> Any:
 def check_config(cfg: DictConfig) -> dict[str, Any] | None:
     """Check what can be checked before any work starts. Returns the resume checkpoint (read once), if any."""
     model = cfg.get("model") or {}
+    if model.get("guidance_inputs") and not DistillSettings.from_config(cfg.get("distill")).teacher:
+        raise ConfigError(
+            "model.guidance_inputs is set by guidance distillation: give the teacher with distill.teacher=<checkpoint> "
+            "and leave model.guidance_inputs at 0"
+        )
     for key in ("seq_len", "d_model", "n_layers", "n_heads", "ff_dim"):
         value = model.get(key)
         if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
@@ -105,6 +118,11 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     """Run one training job. Returns the final metrics and the checkpoint folder."""
     log_files_on_writer_only()  # data-parallel runs: one log file, written by rank 0
     resume = check_config(cfg)
+    distill = DistillSettings.from_config(cfg.get("distill"))
+    teacher = load_teacher(distill)
+    if teacher is not None:  # the student takes the guidance weights as an input
+        with open_dict(cfg):
+            cfg.model.guidance_inputs = student_guidance_inputs(teacher)
     L.seed_everything(int(cfg.seed), workers=True)  # seed 0 is a seed, not "no seed"
 
     audio_encoder = audio_encoder_from_config(cfg)
@@ -125,7 +143,12 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         saved = RunSpec.from_checkpoint(resume, str(cfg.ckpt_path))
         saved.check_resumable_with(spec, str(cfg.ckpt_path))
         _resume_logger_ids(cfg, resume)
-    model = DanceDiffusion(spec)
+    if teacher is None:
+        model = DanceDiffusion(spec)
+    else:
+        check_student_spec(spec, teacher, str(distill.teacher))
+        check_same_data(teacher, datamodule.normalizer, bank, str(distill.teacher))
+        model = GuidanceDistillation(spec, teacher, distill.max_weight)
     model.normalizer.load_state_dict(datamodule.normalizer.state_dict())
     if getattr(datamodule, "floor_height", None) is not None:  # measured on the training motions (docs/floor.md)
         model.set_floor_height(datamodule.floor_height)

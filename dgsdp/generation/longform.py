@@ -167,6 +167,11 @@ class ChunkedDenoiser(nn.Module):
         self.denoiser = denoiser
         self.chunk_size = int(chunk_size)
 
+    @property
+    def guidance_inputs(self) -> int:
+        """The inner denoiser's guidance inputs (a guidance-distilled student's; 0 for other denoisers)."""
+        return getattr(self.denoiser, "guidance_inputs", 0)
+
     def _slices(self, b: int) -> list[slice]:
         if self.chunk_size <= 0 or b <= self.chunk_size:
             return [slice(0, b)]
@@ -195,19 +200,27 @@ class ChunkedDenoiser(nn.Module):
             for sl in self._slices(batch)
         ]
 
-    def forward(self, x_t, t, music=None, style=None, keep_music=None, keep_style=None, *, cond=None):
+    def forward(self, x_t, t, music=None, style=None, keep_music=None, keep_style=None, *, cond=None, guidance=None):
         slices = self._slices(x_t.shape[0])
+        # a guidance-distilled student's weights, by rows (no argument for other denoisers)
+        weights = (lambda sl: {}) if guidance is None else (lambda sl: {"guidance": guidance[sl]})  # noqa: E731
         if cond is not None:
-            return torch.cat([self.denoiser(x_t[sl], t[sl], cond=c) for sl, c in zip(slices, cond, strict=True)])
+            return torch.cat(
+                [self.denoiser(x_t[sl], t[sl], cond=c, **weights(sl)) for sl, c in zip(slices, cond, strict=True)]
+            )
         if len(slices) == 1:
-            return self.denoiser(x_t, t, music, style, keep_music, keep_style)
+            return self.denoiser(x_t, t, music, style, keep_music, keep_style, **weights(slice(None)))
         outs = []
         for sl in slices:
 
             def part(v: torch.Tensor | None, sl: slice = sl) -> torch.Tensor | None:
                 return None if v is None else v[sl]
 
-            outs.append(self.denoiser(x_t[sl], t[sl], part(music), part(style), part(keep_music), part(keep_style)))
+            outs.append(
+                self.denoiser(
+                    x_t[sl], t[sl], part(music), part(style), part(keep_music), part(keep_style), **weights(sl)
+                )
+            )
         return torch.cat(outs)
 
 

@@ -21,6 +21,10 @@ predicts the clean motion x0 (B, T, 151).
   music, 150..151 time tokens for keys), so that frame i of the motion attends to the music around frame i.
   Without it neither stream carries positions into the cross-attention: every frame sees the music as an
   unordered set, and no dance can land on a beat (runs from before the switch were trained that way and load so).
+- ``guidance_inputs`` (a guidance-distilled student, :mod:`dgsdp.training.distill`): the classifier-free guidance
+  weights (music, and style for models with style guidance) are an input, embedded like the diffusion step and
+  added to its embedding, so that one pass predicts what the teacher's guided passes would. The projection starts
+  at zero: an untrained student is its teacher's conditional model.
 - ``gradient_checkpointing`` recomputes each encoder/decoder layer's activations in the backward pass (less
   memory for long windows, about a third more compute).
 
@@ -45,6 +49,8 @@ from dgsdp.style.injection import StyleModulation
 
 INJECTIONS = ("modulation", "concat")
 NULL_MUSIC = ("input", "output")
+GUIDANCE_INPUTS = (0, 1, 2)
+GUIDANCE_SCALE = 100.0  # guidance weights are embedded like diffusion steps of 100 w
 
 
 @dataclass
@@ -162,6 +168,7 @@ class DanceDenoiser(nn.Module):
         cross_attention_rotary: bool = True,
         null_music: str = "input",
         aligned_music: bool = False,
+        guidance_inputs: int = 0,
         gradient_checkpointing: bool = False,
     ) -> None:
         super().__init__()
@@ -169,6 +176,8 @@ class DanceDenoiser(nn.Module):
             raise ValueError(f"unknown style injection {style_injection!r}; use one of {INJECTIONS}")
         if null_music not in NULL_MUSIC:
             raise ValueError(f"unknown null_music {null_music!r}; use one of {NULL_MUSIC}")
+        if guidance_inputs not in GUIDANCE_INPUTS:
+            raise ValueError(f"guidance_inputs must be one of {GUIDANCE_INPUTS}, got {guidance_inputs!r}")
         self.null_music_at = null_music
         self.gradient_checkpointing = gradient_checkpointing
         self.pose_dim, self.seq_len, self.d_model = pose_dim, seq_len, d_model
@@ -180,6 +189,12 @@ class DanceDenoiser(nn.Module):
         self.time_mlp = nn.Sequential(nn.Linear(d_model, 4 * d_model), nn.Mish())
         self.time_film = nn.Linear(4 * d_model, d_model)
         self.time_tokens = nn.Linear(4 * d_model, 2 * d_model)
+        self.guidance_inputs = guidance_inputs
+        self.guidance_proj: nn.Linear | None = None
+        if guidance_inputs:  # zero-initialised: the student starts as its teacher's conditional model
+            self.guidance_proj = nn.Linear(guidance_inputs * d_model, d_model)
+            nn.init.zeros_(self.guidance_proj.weight)
+            nn.init.zeros_(self.guidance_proj.bias)
 
         self.music_proj = nn.Linear(audio_dim, d_model) if audio_dim else None
         self.null_music = nn.Parameter(torch.randn(1, seq_len, d_model) * 0.02)
@@ -369,14 +384,16 @@ class DanceDenoiser(nn.Module):
         keep_style: torch.Tensor | None = None,
         *,
         cond: DenoiserCondition | None = None,
+        guidance: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """x_t (B, T, 151), t (B,), music (B, T, Da), style (B, ds) or (B, T, ds); keep_* (B,) bool
         (False = condition dropped); or, instead of music, style and keep_*, ``cond`` from :meth:`condition`
-        (sampling). Returns x0 prediction (B, T, 151)."""
+        (sampling). ``guidance`` (B, guidance_inputs): the guidance weights of a guidance-distilled student
+        (music, then style). Returns x0 prediction (B, T, 151)."""
         b, n, _ = x_t.shape
         if n > self.seq_len:
             raise ValueError(f"sequence of {n} frames is longer than the model's {self.seq_len}; use long-form")
-        t_hidden = self.time_mlp(sinusoidal_embedding(t, self.d_model))
+        t_hidden = self.time_mlp(self._step_embedding(t, guidance))
         t_cond = self.time_film(t_hidden)
         t_tokens = self.time_tokens(t_hidden).view(b, 2, self.d_model)
         if cond is not None:
@@ -395,6 +412,20 @@ class DanceDenoiser(nn.Module):
         for i, layer in enumerate(self.layers):
             h = self._run(layer, h, memory, t_cond, s, self._modulation(i))
         return self._output(h)
+
+    def _step_embedding(self, t: torch.Tensor, guidance: torch.Tensor | None) -> torch.Tensor:
+        """The sinusoidal embedding of the diffusion step, plus that of the guidance weights for a student."""
+        emb = sinusoidal_embedding(t, self.d_model)
+        if self.guidance_proj is None:
+            if guidance is not None:
+                raise ValueError("guidance weights were given to a denoiser that takes none (guidance_inputs=0)")
+            return emb
+        if guidance is None or guidance.shape != (t.shape[0], self.guidance_inputs):
+            got = None if guidance is None else tuple(guidance.shape)
+            raise ValueError(f"this guidance-distilled denoiser needs guidance weights ({t.shape[0]}, "
+                             f"{self.guidance_inputs}), got {got}")  # fmt: skip
+        features = torch.cat([sinusoidal_embedding(w * GUIDANCE_SCALE, self.d_model) for w in guidance.unbind(1)], 1)
+        return emb + self.guidance_proj(features)
 
     def _input(self, x_t: torch.Tensor) -> torch.Tensor:
         """The motion tokens of x_t, projected in float32 even under bf16 autocast (see :meth:`_output`)."""

@@ -7,7 +7,8 @@ Guidance (x are x0 predictions; passes are batched into one forward):
   condition, x_m music only, x_ms both;
 - models whose style is never dropped (the official DGSDP setting) or without style: ``x_u + w_music (x_m - x_u)``
   with the style kept in both passes.
-With all weights 1 a single conditional pass is run.
+With all weights 1 a single conditional pass is run. A guidance-distilled student (a denoiser with
+``guidance_inputs``, :mod:`dgsdp.training.distill`) takes the weights as an input and runs one conditional pass.
 """
 
 from __future__ import annotations
@@ -117,6 +118,33 @@ class PreparedCondition:
         return {"music": music, "style": style, "keep_music": keep_music, "keep_style": keep_style}
 
 
+def guidance_passes(style_guidance: bool) -> Passes:
+    """(keep_music, keep_style) of each guided pass, the fully conditional pass last: with style guidance
+    (a model trained with style dropout, and a style given) the unconditional, music-only and full passes, else
+    the pass without music and the full one (the style kept in both)."""
+    return ((False, False), (True, False), (True, True)) if style_guidance else ((False, True), (True, True))
+
+
+def combine_guided(
+    outs: Sequence[torch.Tensor], music_weight: float | torch.Tensor, style_weight: float | torch.Tensor
+) -> torch.Tensor:
+    """The guided x0 from the passes of :func:`guidance_passes` (in its order); weights are numbers or tensors
+    that broadcast against the predictions (per-row weights: (B, 1, 1))."""
+    if len(outs) == 2:
+        return outs[0] + music_weight * (outs[1] - outs[0])
+    x_u, x_m, x_ms = outs
+    return x_u + music_weight * (x_m - x_u) + style_weight * (x_ms - x_m)
+
+
+def guidance_weights(denoiser: torch.nn.Module, guidance: Guidance, batch: int, like: torch.Tensor) -> dict:
+    """The ``guidance=`` input of a guidance-distilled student (B, guidance_inputs), or no argument."""
+    n = getattr(denoiser, "guidance_inputs", 0)
+    if not n:
+        return {}
+    weights = torch.tensor([guidance.music_weight, guidance.style_weight][:n], device=like.device, dtype=like.dtype)
+    return {"guidance": weights.expand(batch, n)}
+
+
 class Sampler:
     """Generates x0 (normalised) from noise with any denoiser ``fn(x_t, t, music, style, keep_music, keep_style)``.
 
@@ -142,11 +170,11 @@ class Sampler:
 
     def _passes(self, cond: Condition, guidance: Guidance) -> Passes:
         """(keep_music, keep_style) of each pass, the fully conditional pass last."""
+        if getattr(self.denoiser, "guidance_inputs", 0):  # a student: the weights are its input
+            return ((True, True),)
         if guidance.music_weight == 1 and (guidance.style_weight == 1 or not self.style_guidance):
             return ((True, True),)
-        if self.style_guidance and cond.style is not None:
-            return ((False, False), (True, False), (True, True))
-        return ((False, True), (True, True))
+        return guidance_passes(self.style_guidance and cond.style is not None)
 
     @torch.no_grad()
     def predict_x0(
@@ -164,15 +192,10 @@ class Sampler:
         if prepared is None:
             prepared = PreparedCondition(self.denoiser, cond, x_t.shape[0], x_t.shape[1], x_t.device)
         xs = x_t if k == 1 else x_t.repeat(k, *([1] * (x_t.ndim - 1)))
-        out = self.denoiser(xs, t.repeat(k), **prepared.inputs(passes))
+        weights = guidance_weights(self.denoiser, guidance, xs.shape[0], x_t)
+        out = self.denoiser(xs, t.repeat(k), **prepared.inputs(passes), **weights)
         outs = out.chunk(k)
-        if k == 1:
-            x0 = outs[0]
-        elif k == 2:
-            x0 = outs[0] + guidance.music_weight * (outs[1] - outs[0])
-        else:
-            x_u, x_m, x_ms = outs
-            x0 = x_u + guidance.music_weight * (x_m - x_u) + guidance.style_weight * (x_ms - x_m)
+        x0 = outs[0] if k == 1 else combine_guided(outs, guidance.music_weight, guidance.style_weight)
         return x0 if self.x0_bound is None else x0.clamp(-self.x0_bound, self.x0_bound)
 
     def timesteps(self, method: str, steps: int | None, spacing: str = "lambda") -> list[int]:

@@ -40,17 +40,23 @@ class DanceDiffusion(TrainedModel, L.LightningModule):
                 run_ids[type(logger).__name__] = str(version)
         checkpoint["logger_run_ids"] = run_ids
 
+    def _noised(
+        self, batch: dict[str, Any], train: bool, generator=None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """A random diffusion step t (B,) of each training window, the window noised to it, and its style."""
+        x0 = batch["motion"]
+        t = self.diffusion.sample_timesteps(x0.shape[0], x0.device, generator)
+        noise = torch.randn(x0.shape, device=x0.device, generator=generator)
+        # genre indices come from the dataset's vocabulary (checked when it was read): no device read-back here
+        return t, self.diffusion.q_sample(x0, t, noise), self.style_for(batch["genre"], random=train, check=False)
+
     def _loss(
         self, denoiser: torch.nn.Module, batch: dict[str, Any], train: bool, generator=None
     ) -> dict[str, torch.Tensor]:
         x0 = batch["motion"]
         b = x0.shape[0]
         cond = self.spec.conditioning
-        t = self.diffusion.sample_timesteps(b, x0.device, generator)
-        noise = torch.randn(x0.shape, device=x0.device, generator=generator)
-        x_t = self.diffusion.q_sample(x0, t, noise)
-        # genre indices come from the dataset's vocabulary (checked when it was read): no device read-back here
-        style = self.style_for(batch["genre"], random=train, check=False)
+        t, x_t, style = self._noised(batch, train, generator)
         if train:
             keep_music = torch.rand(b, device=x0.device) >= cond.music_drop_prob
             keep_style = torch.rand(b, device=x0.device) >= cond.style_drop_prob

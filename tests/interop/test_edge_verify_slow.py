@@ -60,9 +60,13 @@ def test_speed_benchmark_against_edges_code(capsys):
 
     best = bench(["--edge-src", EDGE_SRC, "--size", "small", "--seconds", "8", "--repeats", "1", "--features", "35"])
     last = capsys.readouterr().out.strip().splitlines()[-1]
-    fields = dict(part.split("=", 1) for part in last.split(" ", 1))
+    fields = dict(part.split("=", 1) for part in last.split())
+    assert set(fields) == {"sampling_speedup_vs_edge", "student_sampling_speedup_vs_edge", "training_speedup_vs_edge"}
     assert float(fields["sampling_speedup_vs_edge"]) == pytest.approx(
         best["edge long_ddim_sample"] / best["dgsdp default"], rel=0.01
+    )
+    assert float(fields["student_sampling_speedup_vs_edge"]) == pytest.approx(
+        best["edge long_ddim_sample"] / best["student 5 steps"], rel=0.01
     )
     if fields["training_speedup_vs_edge"] != "n/a":  # EDGE's training step needs pytorch3d importable
         edge = min(best["edge fp32"], best["edge bf16"])

@@ -120,3 +120,60 @@ def test_music_named_by_rows_equals_the_music_repeated(null_music, chunk_size):
     # another row order hears other music: the rows are used, not ignored
     shuffled = model.condition(music, style, keep_music, keep, n_frames=n, batch=2 * b, music_rows=rows.flip(0))
     assert not torch.allclose(model(x, t, cond=shuffled)[b:], expected[b:])
+
+
+class PlainStudent(PlainOnly):
+    """A guidance-distilled student seen through the per-step interface only."""
+
+    @property
+    def guidance_inputs(self) -> int:
+        return self.inner.guidance_inputs
+
+    def forward(self, x_t, t, music=None, style=None, keep_music=None, keep_style=None, *, guidance=None):
+        return self.inner(x_t, t, music, style, keep_music, keep_style, guidance=guidance)
+
+
+@pytest.mark.parametrize(("guidance_inputs", "chunk_size"), [(1, 0), (2, 4)])
+def test_student_sampling_cached_chunked_and_plain_agree(guidance_inputs, chunk_size):
+    """A student runs one pass per step with the step's (ramped, capped) weights, on every path alike."""
+    model = tiny_denoiser("modulation", guidance_inputs=guidance_inputs)
+    with torch.no_grad():
+        model.guidance_proj.weight.normal_(0, 0.05)  # a student that hears its weights
+    calls = []
+    inner_forward = model.forward
+
+    def counted(x_t, t, *args, **kwargs):
+        calls.append(kwargs["guidance"][0].tolist())
+        return inner_forward(x_t, t, *args, **kwargs)
+
+    model.forward = counted
+    cached = ChunkedDenoiser(model, chunk_size) if chunk_size else model
+    plain = PlainStudent(model)
+    guidance = Guidance(2.5, 1.5, ramp_fraction=0.5, edit_cap_below_t=400)
+    mask = torch.zeros(1, 40, 151)
+    mask[:, :10] = 1
+    cond = Condition(torch.randn(5, 40, 7), torch.randn(5, 6))
+    outs = []
+    for d in (cached, plain):
+        calls.clear()
+        outs.append(
+            Sampler(d, GaussianDiffusion(), style_guidance=guidance_inputs == 2).sample(
+                (5, 40, 151),
+                cond,
+                method="dpmpp_2m",
+                steps=6,
+                guidance=guidance,
+                mask=mask,
+                known=torch.zeros(5, 40, 151),
+                generator=torch.Generator().manual_seed(0),
+            )  # fmt: skip
+        )
+        per_step = calls if not chunk_size or d is plain else calls[::2]  # two chunks of rows per step
+        assert len(per_step) == 6  # one pass per step
+        # the ramp from 0 over the first half of the steps, then the cap at 1 below t = 400
+        assert [w[0] for w in per_step][:3] == pytest.approx([0.0, 1.0, 2.0])
+        assert per_step[-1][0] == 1.0 and per_step[2][-1] == pytest.approx(1.2 if guidance_inputs == 2 else 2.0)
+    torch.testing.assert_close(outs[0], outs[1], atol=1e-5, rtol=0)
+    assert (outs[0] - Sampler(model, GaussianDiffusion(), style_guidance=False).sample(
+        (5, 40, 151), cond, method="dpmpp_2m", steps=6, guidance=Guidance(1.0), generator=torch.Generator().manual_seed(0),
+    )).abs().max() > 1e-3  # fmt: skip
