@@ -61,7 +61,10 @@ class DenoiserCondition:
     style: the style after condition dropout (B, ds) or (B, T, ds), or None; pooled: (B, d), the pooled music
     tokens added to the FiLM vector; keys, values: per decoder layer (B, H, T + 2, Dh), the cross-attention keys
     (rotated to their positions when the cross-attention has rotary positions) and values of the memory, whose
-    last two positions (the time tokens) are filled in at every step.
+    last two positions (the time tokens) are filled in at every step. ``shared_rows`` = s > 0: the first s rows
+    have dropped music and the same memory (the null music, which no style enters), and their keys and values are
+    stored once, as row 0 of ``keys`` and ``values`` (rows 1.. are rows s.. of the batch): for a whole song this
+    saves the unconditional pass's copy of the cache, half of it.
     """
 
     style: torch.Tensor | None
@@ -70,21 +73,11 @@ class DenoiserCondition:
     values: list[torch.Tensor]
     n_frames: int
     aligned: torch.Tensor | None = None  # (B, T, d) the music added to each frame's motion token (aligned_music)
+    shared_rows: int = 0
 
     @property
     def batch_size(self) -> int:
         return self.pooled.shape[0]
-
-    def rows(self, sl: slice) -> DenoiserCondition:
-        """The condition of rows ``sl`` (views, no copies)."""
-        return DenoiserCondition(
-            None if self.style is None else self.style[sl],
-            self.pooled[sl],
-            [k[sl] for k in self.keys],
-            [v[sl] for v in self.values],
-            self.n_frames,
-            None if self.aligned is None else self.aligned[sl],
-        )
 
 
 class DecoderLayer(nn.Module):
@@ -120,10 +113,13 @@ class DecoderLayer(nn.Module):
         style: torch.Tensor | None = None,
         modulation: StyleModulation | None = None,
         memory_kv: tuple[torch.Tensor, torch.Tensor] | None = None,
+        shared_rows: int = 0,
     ) -> torch.Tensor:
-        """``memory`` (B, S, d), or its cross-attention keys and values ``memory_kv`` computed earlier."""
+        """``memory`` (B, S, d), or its cross-attention keys and values ``memory_kv`` computed earlier (the first
+        ``shared_rows`` rows' stored once, see :class:`DenoiserCondition`)."""
         x = x + self._film(self.film1, self.self_attn(self.norm1(x)), t_cond)
-        x = x + self._film(self.film2, self.cross_attn(self.norm2(x), memory, kv=memory_kv), t_cond)
+        cross = self.cross_attn(self.norm2(x), memory, kv=memory_kv, shared_rows=shared_rows)
+        x = x + self._film(self.film2, cross, t_cond)
         if modulation is not None and style is not None:
             x = modulation(x, style)
         return x + self._film(self.film3, self.ff(self.norm3(x)), t_cond)
@@ -360,6 +356,9 @@ class DanceDenoiser(nn.Module):
         )
         memory = self.memory_norm(tokens)  # LayerNorm is per token: the time tokens are normalised per step
         aligned = self._aligned(memory)
+        shared = self._shared_null_rows(keep_music, s)
+        if shared:  # one copy of the null music's keys and values for the leading rows that share it
+            memory = torch.cat((memory[:1], memory[shared:]))
         keys, values = [], []
         for layer in self.layers:
             k, v = layer.cross_attn.keys_values(memory)
@@ -368,7 +367,21 @@ class DanceDenoiser(nn.Module):
             k_all[:, :, :n_frames], v_all[:, :, :n_frames] = k, v
             keys.append(k_all)
             values.append(v_all)
-        return DenoiserCondition(s, pooled, keys, values, n_frames, aligned=aligned)
+        return DenoiserCondition(s, pooled, keys, values, n_frames, aligned=aligned, shared_rows=shared)
+
+    def _shared_null_rows(self, keep_music: torch.Tensor, style: torch.Tensor | None) -> int:
+        """How many leading rows have dropped music and therefore the same memory (0 if fewer than 2): the null
+        music sequence, through the music encoder unless the nulls replace its output; with a style concatenated
+        before the encoder, the rows' styles must be the same too (one style for a whole song, as generation
+        gives it)."""
+        kept = keep_music.nonzero()
+        leading = int(kept[0, 0]) if kept.numel() else keep_music.shape[0]
+        if leading < 2:
+            return 0
+        if self.use_concat and self.null_music_at == "input" and style is not None:
+            if not bool((style[:leading] == style[:1]).all()):
+                return 0
+        return leading
 
     def _aligned(self, memory: torch.Tensor) -> torch.Tensor | None:
         """The frame-aligned music (B, T, d) from the normalised music tokens, or None when it is off."""
@@ -455,9 +468,14 @@ class DanceDenoiser(nn.Module):
         h = self._input(x_t)
         if cond.aligned is not None:
             h = h + cond.aligned
+        shared = cond.shared_rows
+        if shared:  # the shared rows' time tokens are written once: they must be at the same step
+            if not bool((t_memory[:shared] == t_memory[:1]).all()):
+                raise ValueError("rows that share their cached keys and values must be at the same diffusion step")
+            t_memory = torch.cat((t_memory[:1], t_memory[shared:]))
         for i, layer in enumerate(self.layers):
             keys, values = cond.keys[i], cond.values[i]
             # the time tokens' keys and values go into the last two positions of the cached memory
             keys[:, :, n:], values[:, :, n:] = layer.cross_attn.keys_values(t_memory, start=n)
-            h = layer(h, None, t_cond, cond.style, self._modulation(i), memory_kv=(keys, values))
+            h = layer(h, None, t_cond, cond.style, self._modulation(i), memory_kv=(keys, values), shared_rows=shared)
         return self._output(h)

@@ -183,14 +183,22 @@ class Attention(nn.Module):
         x: torch.Tensor,
         memory: torch.Tensor | None = None,
         kv: tuple[torch.Tensor, torch.Tensor] | None = None,
+        shared_rows: int = 0,
     ) -> torch.Tensor:
         """x (B, T, d) attends to ``memory`` (B, S, d), or to itself if None; or to keys and values ``kv``
-        computed earlier by :meth:`keys_values`. Queries sit at positions 0..T - 1, memory at 0..S - 1."""
+        computed earlier by :meth:`keys_values`. Queries sit at positions 0..T - 1, memory at 0..S - 1.
+        ``shared_rows`` = s > 0 (with ``kv``): the first s rows of x share row 0 of the keys and values; rows
+        1.. belong to rows s.. of x."""
         if memory is None and kv is None:
             q, k, v = self._self_qkv(x)
         else:
             q = self.queries(x)
             k, v = kv if kv is not None else self.keys_values(memory)
+        if shared_rows:
+            s = shared_rows
+            first = F.scaled_dot_product_attention(q[:s], k[:1].expand(s, -1, -1, -1), v[:1].expand(s, -1, -1, -1))
+            y = torch.cat((first, F.scaled_dot_product_attention(q[s:], k[1:], v[1:]))) if len(k) > 1 else first
+            return self.out(y.transpose(1, 2).flatten(2))
         if self.training and self.dropout and q.device.type == "cpu":
             # SDPA would draw its attention-weight dropout mask with bernoulli_ (see :func:`dropout`)
             weights = torch.softmax((q * q.shape[-1] ** -0.5) @ k.transpose(-2, -1), dim=-1).to(v.dtype)

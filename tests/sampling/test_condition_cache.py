@@ -177,3 +177,42 @@ def test_student_sampling_cached_chunked_and_plain_agree(guidance_inputs, chunk_
     assert (outs[0] - Sampler(model, GaussianDiffusion(), style_guidance=False).sample(
         (5, 40, 151), cond, method="dpmpp_2m", steps=6, guidance=Guidance(1.0), generator=torch.Generator().manual_seed(0),
     )).abs().max() > 1e-3  # fmt: skip
+
+
+@pytest.mark.parametrize("injection", ["modulation", "concat"])
+@pytest.mark.parametrize("null_music", ["input", "output"])
+def test_leading_null_rows_share_one_copy_of_their_keys_and_values(injection, null_music):
+    """The unconditional pass's rows come first in a guided batch: their cached keys and values are stored once
+    when they are the same (no style enters the null music), and predictions equal the plain forward."""
+    model = tiny_denoiser(injection, null_music=null_music)
+    b, n = 7, 30
+    x, t = torch.randn(b, n, 151), torch.full((b,), 420)
+    music, style = torch.randn(b, n, 7), torch.randn(b, 6)
+    keep_music = torch.tensor([False, False, False, True, False, True, True])
+    keep_style = torch.ones(b, dtype=torch.bool)
+    cond = model.condition(music, style, keep_music, keep_style)
+    shared = 0 if (injection, null_music) == ("concat", "input") else 3  # concat: the style enters the null music
+    assert cond.shared_rows == shared
+    if not shared:  # unless the rows' styles are the same, as in one song's windows
+        same = style.clone()
+        same[:3] = style[0]
+        shared_cond = model.condition(music, same, keep_music, keep_style)
+        assert shared_cond.shared_rows == 3
+        torch.testing.assert_close(model(x, t, cond=shared_cond), model(x, t, music, same, keep_music, keep_style),
+                                   atol=2e-6, rtol=0)  # fmt: skip
+    assert cond.keys[0].shape[0] == (b - shared + 1 if shared else b)
+    for _ in range(2):  # reused across steps
+        torch.testing.assert_close(model(x, t, cond=cond), model(x, t, music, style, keep_music, keep_style),
+                                   atol=2e-6, rtol=0)  # fmt: skip
+        x, t = torch.randn(b, n, 151), torch.full((b,), 17)
+    if shared:
+        with pytest.raises(ValueError, match="same diffusion step"):
+            model(x, torch.tensor([1, 2, 3, 4, 5, 6, 7]), cond=cond)
+    # a single leading null row, or a kept first row: nothing to share
+    assert (
+        model.condition(
+            music, style, torch.tensor([False, True, True, False, False, True, True]), keep_style
+        ).shared_rows
+        == 0
+    )
+    assert model.condition(music, style, torch.ones(b, dtype=torch.bool), keep_style).shared_rows == 0
