@@ -469,13 +469,17 @@ class DanceDenoiser(nn.Module):
         if cond.aligned is not None:
             h = h + cond.aligned
         shared = cond.shared_rows
-        if shared:  # the shared rows' time tokens are written once: they must be at the same step
-            if not bool((t_memory[:shared] == t_memory[:1]).all()):
-                raise ValueError("rows that share their cached keys and values must be at the same diffusion step")
+        # the shared rows' time tokens are written once when those rows are at the same step (sampling); otherwise
+        # this call works on a full copy of their keys and values
+        expand = bool(shared) and not bool((t_memory[:shared] == t_memory[:1]).all())
+        if shared and not expand:
             t_memory = torch.cat((t_memory[:1], t_memory[shared:]))
         for i, layer in enumerate(self.layers):
             keys, values = cond.keys[i], cond.values[i]
+            if expand:
+                keys, values = (torch.cat((kv[:1].expand(shared, -1, -1, -1), kv[1:])) for kv in (keys, values))
             # the time tokens' keys and values go into the last two positions of the cached memory
             keys[:, :, n:], values[:, :, n:] = layer.cross_attn.keys_values(t_memory, start=n)
-            h = layer(h, None, t_cond, cond.style, self._modulation(i), memory_kv=(keys, values), shared_rows=shared)
+            h = layer(h, None, t_cond, cond.style, self._modulation(i), memory_kv=(keys, values),
+                      shared_rows=0 if expand else shared)  # fmt: skip
         return self._output(h)

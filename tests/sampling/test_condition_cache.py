@@ -205,9 +205,12 @@ def test_leading_null_rows_share_one_copy_of_their_keys_and_values(injection, nu
         torch.testing.assert_close(model(x, t, cond=cond), model(x, t, music, style, keep_music, keep_style),
                                    atol=2e-6, rtol=0)  # fmt: skip
         x, t = torch.randn(b, n, 151), torch.full((b,), 17)
-    if shared:
-        with pytest.raises(ValueError, match="same diffusion step"):
-            model(x, torch.tensor([1, 2, 3, 4, 5, 6, 7]), cond=cond)
+    # rows at different steps (predict_x0 of a batch at several steps): a full copy of the shared rows' cache
+    t = torch.tensor([1, 200, 3, 999, 5, 6, 7])
+    torch.testing.assert_close(model(x, t, cond=cond), model(x, t, music, style, keep_music, keep_style),
+                               atol=2e-6, rtol=0)  # fmt: skip
+    torch.testing.assert_close(model(x, t.fill_(40), cond=cond), model(x, t, music, style, keep_music, keep_style),
+                               atol=2e-6, rtol=0)  # fmt: skip
     # a single leading null row, or a kept first row: nothing to share
     assert (
         model.condition(
