@@ -74,6 +74,8 @@ def run_info(spec: RunSpec) -> dict[str, Any]:
         "groups": dict(spec.groups),
         "run_dir": (config.get("paths") or {}).get("output_dir"),
         "wandb_project": ((config.get("logger") or {}).get("wandb") or {}).get("project"),
+        # a guidance-distilled student (docs/distillation.md): one denoiser pass per sampling step
+        "guidance_student": bool(spec.model.get("guidance_inputs")),
     }
 
 

@@ -49,7 +49,8 @@ def results_markdown(results: Mapping[str, Any]) -> str:
     out = [title, "", f"Checkpoint: `{results.get('checkpoint', '?')}`", ""]
     sampling = (results.get("settings") or {}).get("sampling")
     if sampling:
-        out[-1:] = [f"Sampling: {sampling_summary(sampling)}", ""]
+        student = "; a guidance-distilled student, one pass per step" if run.get("guidance_student") else ""
+        out[-1:] = [f"Sampling: {sampling_summary(sampling)}{student}", ""]
     out.append(markdown_table(["row", *metrics, "trials"], rows))
     notes = [f"- {r['name']}: {r['notes']}" for r in results["rows"] if r.get("notes")]
     if notes:

@@ -275,3 +275,6 @@ def test_protocols_and_sweeps_sample_as_the_papers_and_say_so(tmp_path):
     assert "Sampling: ddim, 50 steps, eta 1, long-form edge, x0 clip 1 (the papers' sampling" in results_markdown(
         results
     )
+    assert "student" not in results_markdown(results)
+    student = results_markdown({**results, "run": {"guidance_student": True}})
+    assert "sampling=edge); a guidance-distilled student, one pass per step" in student

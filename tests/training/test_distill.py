@@ -8,6 +8,7 @@ import torch
 from hydra.utils import instantiate
 from test_train import run
 
+from dgsdp.cli.evaluate import run_info
 from dgsdp.cli.train import audio_encoder_from_config
 from dgsdp.errors import ConfigError
 from dgsdp.model import DanceDenoiser
@@ -126,6 +127,7 @@ def test_distillation_run_learns_the_guided_teacher(tmp_path, tiny_synthetic):
     )  # fmt: skip
     teacher, student = load_model(taught["checkpoint"]), load_model(result["checkpoint"])
     assert student.denoiser.guidance_inputs == 1 and teacher.denoiser.guidance_inputs == 0
+    assert run_info(student.spec)["guidance_student"] and not run_info(teacher.spec)["guidance_student"]
     data = instantiate(cfg.data, audio_encoder=audio_encoder_from_config(cfg))
     data.setup("fit")
     batch = next(iter(data.val_dataloader()))  # the held-out windows
