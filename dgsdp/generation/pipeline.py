@@ -301,6 +301,7 @@ class DanceGenerator:
             idx[k : k + sampling.batch_size] for idx in groups.values() for k in range(0, len(idx), sampling.batch_size)
         ]
         out: list[torch.Tensor | None] = [None] * len(requests)
+        self._check_student_weights(sampling)
         autocast = torch.autocast(self.device.type, dtype=torch.bfloat16) if sampling.bf16 else contextlib.nullcontext()
         for batch in batches:
             items = [requests[i] for i in batch]
@@ -315,6 +316,18 @@ class DanceGenerator:
             for i, motion in zip(batch, motions):
                 out[i] = motion.float().cpu()
         return out  # type: ignore[return-value]
+
+    def _check_student_weights(self, sampling: SamplingSettings) -> None:
+        """A guidance-distilled student learnt weights up to its ``distill.max_weight``: warn above it."""
+        if not getattr(self.model.ema.module, "guidance_inputs", 0):
+            return
+        trained = (self.spec.record.get("distill") or {}).get("max_weight")
+        weights = (sampling.guidance.music, sampling.guidance.style)[: self.model.ema.module.guidance_inputs]
+        if isinstance(trained, int | float) and max(weights) > trained:
+            log.warning(
+                "this guidance-distilled student learnt guidance weights up to %g; %g is beyond them (it extrapolates): "
+                "retrain it with a larger distill.max_weight or sample with a smaller weight", trained, max(weights),
+            )  # fmt: skip
 
     def dance_to_song(
         self,

@@ -163,3 +163,26 @@ def test_configuration_errors(tmp_path, tiny_synthetic):
     _, student = run(tmp_path / "d", tiny_synthetic, ckpt, "trainer.max_steps=1", "trainer.limit_val_batches=0")
     with pytest.raises(ConfigError, match="is itself a guidance-distilled student"):
         run(tmp_path / "e", tiny_synthetic, f"distill.teacher={student['checkpoint']}")
+
+
+def test_generation_warns_above_the_students_trained_weights(tmp_path, caplog):
+    from dgsdp.generation import DanceGenerator
+    from dgsdp.sampling import GuidanceSettings, SamplingSettings
+
+    teacher, student = _teacher_and_student(style_guidance=False)
+    spec = dataclasses.replace(student.spec, record={"distill": {"teacher": "t.ckpt", "max_weight": 3.0}})
+    generator = DanceGenerator(TrainedModel(spec), cache_dir=tmp_path)
+    with caplog.at_level("WARNING"):
+        generator.generate(12, music=torch.randn(12, 6), sampling=SamplingSettings(steps=2), seed=0)
+    assert "extrapolates" not in caplog.text
+    with caplog.at_level("WARNING"):
+        generator.generate(
+            12, music=torch.randn(12, 6), sampling=SamplingSettings(steps=2, guidance=GuidanceSettings(music=4.0))
+        )
+    assert "learnt guidance weights up to 3; 4 is beyond them" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):  # the teacher takes any weight
+        DanceGenerator(teacher, cache_dir=tmp_path).generate(
+            12, music=torch.randn(12, 6), sampling=SamplingSettings(steps=2, guidance=GuidanceSettings(music=4.0))
+        )
+    assert "extrapolates" not in caplog.text
