@@ -26,7 +26,6 @@ docs/distillation.md measured against the default's quality.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import importlib.util
 import tempfile
 import time
@@ -35,13 +34,13 @@ from pathlib import Path
 
 import torch
 
+from dgsdp.benchmarks.generation import student_of
 from dgsdp.cli.config import compose_config
 from dgsdp.generation import DanceGenerator, WindowLayout
 from dgsdp.interop.edge.checkpoint import EdgeCheckpoint, EdgeScaler
 from dgsdp.interop.edge.convert import build_model
 from dgsdp.interop.edge.verify import edge_code, edge_model
 from dgsdp.sampling import SamplingSettings
-from dgsdp.trained import TrainedModel
 from dgsdp.trained.spec import RunSpec
 
 SIZES = {"paper": {"d": 512, "layers": 8, "ff": 1024}, "small": {"d": 64, "layers": 2, "ff": 128}}
@@ -101,17 +100,6 @@ def run_sampling(edge_src: str, *, size: str, features: int, seconds: float, rep
             for name, (model, settings) in presets.items():
                 times[name].append(time_ours(model, settings))
     return times
-
-
-def student_of(model: TrainedModel) -> TrainedModel:
-    """A guidance-distilled student of ``model``'s architecture (its weights, the guidance projection at zero:
-    the speed of a trained one)."""
-    spec = dataclasses.replace(model.spec, model={**model.spec.model, "guidance_inputs": 1})
-    student = TrainedModel(spec, source="checkpoint")
-    missing, unexpected = student.load_state_dict(model.state_dict(), strict=False)
-    if unexpected or any("guidance_proj" not in k for k in missing):
-        raise RuntimeError(f"the student does not fit the model: missing {missing}, extra {unexpected}")
-    return student.eval()
 
 
 def run_training(edge_src: str, *, size: str, features: int, batch: int, repeats: int) -> dict[str, list[float]]:

@@ -9,6 +9,7 @@ autocast). It prints one table row per model, device and precision.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import tempfile
 import time
 from dataclasses import dataclass
@@ -45,6 +46,17 @@ def build_model(size: str) -> TrainedModel:
     dims = SIZES[size]
     spec = RunSpec.from_groups(model=size, audio_dim=dims["audio_dim"], style_dim=dims["style_dim"])
     return TrainedModel(spec).eval()
+
+
+def student_of(model: TrainedModel) -> TrainedModel:
+    """A guidance-distilled student of ``model``'s architecture (its weights, the guidance projection at zero:
+    the speed of a trained one)."""
+    spec = dataclasses.replace(model.spec, model={**model.spec.model, "guidance_inputs": 1})
+    student = TrainedModel(spec, source="checkpoint")
+    missing, unexpected = student.load_state_dict(model.state_dict(), strict=False)
+    if unexpected or any("guidance_proj" not in k for k in missing):
+        raise RuntimeError(f"the student does not fit the model: missing {missing}, extra {unexpected}")
+    return student.eval()
 
 
 def time_generation(size: str, device: str, *, seconds: float, steps: int, bf16: bool, repeats: int = 1) -> Timing:

@@ -17,7 +17,7 @@ import time
 
 import torch
 
-from dgsdp.benchmarks.generation import SIZES, build_model
+from dgsdp.benchmarks.generation import SIZES, build_model, student_of
 from dgsdp.generation import DanceGenerator
 from dgsdp.sampling import SamplingSettings
 
@@ -42,8 +42,6 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
         torch.set_num_threads(args.threads)
     model = build_model(args.size)
     if args.student:
-        from dgsdp.benchmarks.edge import student_of
-
         model = student_of(model)
     dims = SIZES[args.size]
     n = int(round(args.seconds * FPS))

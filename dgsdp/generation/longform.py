@@ -202,8 +202,11 @@ class ChunkedDenoiser(nn.Module):
 
     def forward(self, x_t, t, music=None, style=None, keep_music=None, keep_style=None, *, cond=None, guidance=None):
         slices = self._slices(x_t.shape[0])
-        # a guidance-distilled student's weights, by rows (no argument for other denoisers)
-        weights = (lambda sl: {}) if guidance is None else (lambda sl: {"guidance": guidance[sl]})  # noqa: E731
+
+        def weights(sl: slice) -> dict:
+            """A guidance-distilled student's weights of rows ``sl`` (no argument for other denoisers)."""
+            return {} if guidance is None else {"guidance": guidance[sl]}
+
         if cond is not None:
             return torch.cat(
                 [self.denoiser(x_t[sl], t[sl], cond=c, **weights(sl)) for sl, c in zip(slices, cond, strict=True)]

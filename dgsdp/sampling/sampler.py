@@ -99,13 +99,8 @@ class PreparedCondition:
 
     def _prepare(self, passes: Passes) -> dict:
         k, b = len(passes), self.batch
-
-        def rep(v: torch.Tensor | None) -> torch.Tensor | None:
-            return None if v is None else v.repeat(k, *([1] * (v.ndim - 1)))
-
-        keep_music = torch.tensor([p[0] for p in passes], device=self.device).repeat_interleave(b)
-        keep_style = torch.tensor([p[1] for p in passes], device=self.device).repeat_interleave(b)
-        style = rep(self.cond.style)
+        keep_music, keep_style = pass_masks(passes, b, self.device)
+        style = repeat_passes(self.cond.style, k)
         condition = getattr(self.denoiser, "condition", None)
         if condition is not None:
             # the music is not repeated over the passes: each row names its row of the run's music
@@ -114,7 +109,7 @@ class PreparedCondition:
                                music_rows=rows)  # fmt: skip
             if cached is not None:
                 return {"cond": cached}
-        music = rep(self.cond.music)
+        music = repeat_passes(self.cond.music, k)
         return {"music": music, "style": style, "keep_music": keep_music, "keep_style": keep_style}
 
 
@@ -123,6 +118,18 @@ def guidance_passes(style_guidance: bool) -> Passes:
     (a model trained with style dropout, and a style given) the unconditional, music-only and full passes, else
     the pass without music and the full one (the style kept in both)."""
     return ((False, False), (True, False), (True, True)) if style_guidance else ((False, True), (True, True))
+
+
+def pass_masks(passes: Passes, batch: int, device: torch.device | str) -> tuple[torch.Tensor, torch.Tensor]:
+    """keep_music and keep_style (len(passes) * batch,) of a batch laid out pass after pass."""
+    keep_music = torch.tensor([p[0] for p in passes], device=device).repeat_interleave(batch)
+    keep_style = torch.tensor([p[1] for p in passes], device=device).repeat_interleave(batch)
+    return keep_music, keep_style
+
+
+def repeat_passes(v: torch.Tensor | None, k: int) -> torch.Tensor | None:
+    """``v`` (B, ...) repeated for ``k`` passes laid out one after the other (None stays None)."""
+    return None if v is None else v.repeat(k, *([1] * (v.ndim - 1)))
 
 
 def combine_guided(

@@ -22,7 +22,7 @@ from typing import Any
 import torch
 
 from dgsdp.errors import ConfigError
-from dgsdp.sampling.sampler import combine_guided, guidance_passes
+from dgsdp.sampling.sampler import combine_guided, guidance_passes, pass_masks, repeat_passes
 from dgsdp.trained.model import TrainedModel, load_model
 from dgsdp.trained.spec import RunSpec
 from dgsdp.training.module import DanceDiffusion
@@ -123,14 +123,10 @@ class GuidanceDistillation(DanceDiffusion):
         """The teacher's guided x0 (B, T, 151) with per-row weights (B, guidance_inputs), as the sampler forms it
         (without the x0 bound, which the sampler applies to the student's prediction)."""
         passes = guidance_passes(self.style_guidance and style is not None)
-        k, b = len(passes), x_t.shape[0]
-
-        def rep(v: torch.Tensor | None) -> torch.Tensor | None:
-            return None if v is None else v.repeat(k, *([1] * (v.ndim - 1)))
-
-        keep_music = torch.tensor([p[0] for p in passes], device=x_t.device).repeat_interleave(b)
-        keep_style = torch.tensor([p[1] for p in passes], device=x_t.device).repeat_interleave(b)
-        outs = self.teacher(rep(x_t), t.repeat(k), rep(music), rep(style), keep_music, keep_style).chunk(k)
+        k = len(passes)
+        keep_music, keep_style = pass_masks(passes, x_t.shape[0], x_t.device)
+        rep = [repeat_passes(v, k) for v in (x_t, music, style)]
+        outs = self.teacher(rep[0], t.repeat(k), rep[1], rep[2], keep_music, keep_style).chunk(k)
         w = weights[:, :, None, None]  # (B, n, 1, 1): one weight per row
         return combine_guided(outs, w[:, 0], w[:, -1] if weights.shape[1] > 1 else 1.0)
 

@@ -71,33 +71,27 @@ class PlainOnly(torch.nn.Module):
         return self.inner(x_t, t, music, style, keep_music, keep_style)
 
 
+def edited_sampling(denoiser, cond: Condition, method: str, style_guidance: bool) -> torch.Tensor:
+    """6 steps of 5 rows of 40 frames with the first 10 frames given; the guidance's ramp and edit cap change the
+    weights (and the guidance passes) between steps."""
+    mask = torch.zeros(1, 40, 151)
+    mask[:, :10] = 1
+    return Sampler(denoiser, GaussianDiffusion(), style_guidance=style_guidance).sample(
+        (5, 40, 151), cond, method=method, steps=6, guidance=Guidance(2.5, 1.5, ramp_fraction=0.5, edit_cap_below_t=400),
+        mask=mask, known=torch.zeros(5, 40, 151), generator=torch.Generator().manual_seed(0),
+    )  # fmt: skip
+
+
 @pytest.mark.parametrize(
     ("method", "style_guidance", "chunk_size"),
     [("ddim", False, 0), ("ddim", True, 4), ("dpmpp_2m", True, 0), ("unipc", False, 4), ("unipc", True, 0)],
 )
 def test_cached_sampling_equals_the_per_step_path(method, style_guidance, chunk_size):
     model = tiny_denoiser("modulation")
-    diffusion = GaussianDiffusion()
     cached = ChunkedDenoiser(model, chunk_size) if chunk_size else model
     plain = ChunkedDenoiser(PlainOnly(model), chunk_size) if chunk_size else PlainOnly(model)
     cond = Condition(torch.randn(5, 40, 7), torch.randn(5, 6))
-    # ramp and edit cap change the guidance passes between steps
-    guidance = Guidance(2.5, 1.5, ramp_fraction=0.5, edit_cap_below_t=400)
-    mask = torch.zeros(1, 40, 151)
-    mask[:, :10] = 1
-    outs = [
-        Sampler(d, diffusion, style_guidance=style_guidance).sample(
-            (5, 40, 151),
-            cond,
-            method=method,
-            steps=6,
-            guidance=guidance,
-            mask=mask,
-            known=torch.zeros(5, 40, 151),
-            generator=torch.Generator().manual_seed(0),
-        )  # fmt: skip
-        for d in (cached, plain)
-    ]
+    outs = [edited_sampling(d, cond, method, style_guidance) for d in (cached, plain)]
     torch.testing.assert_close(outs[0], outs[1], atol=1e-5, rtol=0)
 
 
@@ -149,25 +143,11 @@ def test_student_sampling_cached_chunked_and_plain_agree(guidance_inputs, chunk_
     model.forward = counted
     cached = ChunkedDenoiser(model, chunk_size) if chunk_size else model
     plain = PlainStudent(model)
-    guidance = Guidance(2.5, 1.5, ramp_fraction=0.5, edit_cap_below_t=400)
-    mask = torch.zeros(1, 40, 151)
-    mask[:, :10] = 1
     cond = Condition(torch.randn(5, 40, 7), torch.randn(5, 6))
     outs = []
     for d in (cached, plain):
         calls.clear()
-        outs.append(
-            Sampler(d, GaussianDiffusion(), style_guidance=guidance_inputs == 2).sample(
-                (5, 40, 151),
-                cond,
-                method="dpmpp_2m",
-                steps=6,
-                guidance=guidance,
-                mask=mask,
-                known=torch.zeros(5, 40, 151),
-                generator=torch.Generator().manual_seed(0),
-            )  # fmt: skip
-        )
+        outs.append(edited_sampling(d, cond, "dpmpp_2m", style_guidance=guidance_inputs == 2))
         per_step = calls if not chunk_size or d is plain else calls[::2]  # two chunks of rows per step
         assert len(per_step) == 6  # one pass per step
         # the ramp from 0 over the first half of the steps, then the cap at 1 below t = 400
