@@ -13,7 +13,8 @@ and bf16.
 Training: one step at ``--batch`` random 5 s windows, as EDGE's ``train_loop`` runs it (its loss with the velocity,
 FK and foot terms, backward, Adan step, EMA update) against dgsdp's ``experiment=edge`` model and loss (the same
 architecture, loss terms and weights, Adan, EMA), each in float32 and under bf16 autocast (what Lightning's
-``trainer.precision=bf16-mixed`` and accelerate's ``mixed_precision=bf16`` do). EDGE's FK imports pytorch3d; its
+``trainer.precision=bf16-mixed`` and accelerate's ``mixed_precision=bf16`` do). The bf16 rows, sampling and
+training, run only where the CPU has bf16 instructions (AVX512-BF16 or AMX); elsewhere they would take hours. EDGE's FK imports pytorch3d; its
 rotation code is pure Python, so a checkout of facebookresearch/pytorch3d on ``PYTHONPATH`` serves (no build). Without
 pytorch3d the training figure is n/a.
 
@@ -42,12 +43,19 @@ from dgsdp.interop.edge.convert import build_model
 from dgsdp.interop.edge.verify import edge_code, edge_model
 from dgsdp.sampling import SamplingSettings
 from dgsdp.trained.spec import RunSpec
+from dgsdp.utils.device import cpu_has_native_bf16
 
 SIZES = {"paper": {"d": 512, "layers": 8, "ff": 1024}, "small": {"d": 64, "layers": 2, "ff": 128}}
 WINDOW, STRIDE = 150, 75
 EDGE_SWITCHES = {"rotary_placement": "input", "cross_attention_rotary": True, "null_music": "output"}
 PRECISIONS = ("fp32", "bf16")
 STUDENT_HEADLINE = "student 5 steps"  # the student's setting whose quality docs/distillation.md compares
+
+
+def precisions() -> tuple[str, ...]:
+    """The precisions timed here: bf16 only where the CPU has bf16 instructions (elsewhere torch's bf16 products
+    are a plain loop, hundreds of times slower: :func:`dgsdp.utils.device.cpu_has_native_bf16`)."""
+    return PRECISIONS if cpu_has_native_bf16() else tuple(p for p in PRECISIONS if p != "bf16")
 
 
 def identity_scaler() -> EdgeScaler:
@@ -81,6 +89,8 @@ def run_sampling(edge_src: str, *, size: str, features: int, seconds: float, rep
             "student 5 steps": ("student", SamplingSettings(steps=5)),
             "student default, bf16": ("student", SamplingSettings(bf16=True)),
         }  # fmt: skip
+        if not cpu_has_native_bf16():
+            presets = {name: preset for name, preset in presets.items() if not preset[1].bf16}
         times: dict[str, list[float]] = {"edge long_ddim_sample": [], **{name: [] for name in presets}}
         music = torch.randn(layout.n_windows, WINDOW, features, generator=torch.Generator().manual_seed(1))
 
@@ -142,7 +152,7 @@ def run_training(edge_src: str, *, size: str, features: int, batch: int, repeats
             our_optim.zero_grad(set_to_none=True)
             ours.ema.update_parameters(ours.denoiser)
 
-        for precision in PRECISIONS:
+        for precision in precisions():
             steps[f"edge {precision}"] = edge_step
             steps[f"dgsdp {precision}"] = our_step
         times: dict[str, list[float]] = {name: [] for name in steps}
@@ -178,6 +188,8 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     best: dict[str, float] = {}
     sampling = student = training = "n/a"
     setting = f"size {args.size}, {args.features}-d features, {torch.get_num_threads()} threads"
+    if not cpu_has_native_bf16():
+        print("this CPU has no bf16 instructions (AVX512-BF16 or AMX): the bf16 rows are left out (float32 only)")
     if "sampling" in args.parts:
         times = run_sampling(
             args.edge_src, size=args.size, features=args.features, seconds=args.seconds, repeats=args.repeats
@@ -201,11 +213,11 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
             print(f"training: {setting}, batch {args.batch}, {args.repeats} interleaved repeats after a warm-up; "
                   "seconds per step, fastest of each:")  # fmt: skip
             best.update(_print_times(times))
-            for precision in PRECISIONS:
+            for precision in precisions():
                 ratio = best[f"edge {precision}"] / best[f"dgsdp {precision}"]
                 print(f"  {precision}: dgsdp vs EDGE's code {ratio:.2f}x")
-            edge = min(best[f"edge {p}"] for p in PRECISIONS)
-            ours = min(best[f"dgsdp {p}"] for p in PRECISIONS)
+            edge = min(best[f"edge {p}"] for p in precisions())
+            ours = min(best[f"dgsdp {p}"] for p in precisions())
             print(f"  fastest against fastest: EDGE {edge:.2f} s, dgsdp {ours:.2f} s per step")
             training = f"{edge / ours:.2f}"
     print(

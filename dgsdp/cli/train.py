@@ -35,6 +35,7 @@ from dgsdp.training.distill import (
 from dgsdp.training.distributed import is_writer, log_files_on_writer_only
 from dgsdp.training.module import DanceDiffusion, wandb_run_id
 from dgsdp.training.resume import check_resume_has_work
+from dgsdp.utils.device import check_cpu_bf16
 from dgsdp.utils.io import atomic_write_text
 
 log = logging.getLogger(__name__)
@@ -86,6 +87,10 @@ def check_config(cfg: DictConfig) -> dict[str, Any] | None:
             f"trainer.accelerator={accelerator} but this machine has no CUDA GPU; use trainer=cpu (or "
             "trainer.accelerator=cpu; with trainer=ddp also trainer.precision=32-true)"
         )
+    precision = str(trainer.get("precision", "32-true"))
+    on_cpu = accelerator == "cpu" or (accelerator == "auto" and not torch.cuda.is_available())
+    if precision.startswith("bf16") and on_cpu:
+        check_cpu_bf16(f"trainer.precision={precision}")
     devices = trainer.get("devices", 1)
     if not (devices == "auto" or (isinstance(devices, int) and devices != 0) or OmegaConf.is_list(devices)):
         raise ConfigError(f"trainer.devices must be a positive number, 'auto' or a list of ids, got {devices!r}")

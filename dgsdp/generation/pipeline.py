@@ -31,7 +31,7 @@ from dgsdp.motion import FloorCleanup, clean_motion
 from dgsdp.resources import home
 from dgsdp.sampling import SamplingSettings
 from dgsdp.trained import TrainedModel, load_model
-from dgsdp.utils.device import resolve_device
+from dgsdp.utils.device import check_cpu_bf16, resolve_device
 
 log = logging.getLogger(__name__)
 
@@ -302,6 +302,8 @@ class DanceGenerator:
         ]
         out: list[torch.Tensor | None] = [None] * len(requests)
         self._check_student_weights(sampling)
+        if sampling.bf16 and self.device.type == "cpu":
+            check_cpu_bf16("sampling.bf16=true")
         autocast = torch.autocast(self.device.type, dtype=torch.bfloat16) if sampling.bf16 else contextlib.nullcontext()
         for batch in batches:
             items = [requests[i] for i in batch]

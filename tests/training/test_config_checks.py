@@ -10,7 +10,7 @@ from test_train import run, tiny_overrides
 
 from dgsdp.cli.config import compose_config
 from dgsdp.cli.train import train
-from dgsdp.errors import CheckpointError, ConfigError
+from dgsdp.errors import CheckpointError, ConfigError, DgsdpError
 
 
 @pytest.mark.parametrize(
@@ -76,3 +76,18 @@ def test_command_line_error_is_one_line_and_leaves_no_run_folder(tmp_path, repo_
     runs = list((out / "train" / "runs").glob("*")) if (out / "train" / "runs").exists() else []
     assert runs == []
     assert not (tmp_path / "data").exists()
+
+
+def test_bf16_training_on_a_cpu_without_bf16_instructions_is_refused(tmp_path, monkeypatch):
+    import dgsdp.utils.device
+
+    data = {"root": str(tmp_path / "none"), "cache": str(tmp_path / "cache")}
+    overrides = tiny_overrides(data, "trainer.accelerator=cpu", "trainer.precision=bf16-mixed")
+    cfg = compose_config("train", overrides, output_dir=tmp_path / "run")
+    monkeypatch.setattr(dgsdp.utils.device, "cpu_has_native_bf16", lambda: False)
+    with pytest.raises(ConfigError, match="trainer.precision=bf16-mixed asks for bf16 autocast on a CPU without bf16"):
+        train(cfg)
+    assert not (tmp_path / "none").exists()
+    monkeypatch.setattr(dgsdp.utils.device, "cpu_has_native_bf16", lambda: True)  # then it goes on to the data
+    with pytest.raises(DgsdpError, match=r"no AIST\+\+ dataset at"):
+        train(cfg)
