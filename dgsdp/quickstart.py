@@ -41,7 +41,8 @@ TRAIN_STEPS = 1000
 # - 1000 steps instead of 500: the raw dances move at the training data's speed instead of half of it;
 # - the pause term (loss.pause=6): the velocity error again where the training dance holds still, which is on the
 #   beat; with it the raw dances slow down before the beat as the training dances do.
-QUICKSTART_TRAINING = (f"trainer.max_steps={TRAIN_STEPS}", "experiment=quickstart_row5")
+QUICKSTART_EXPERIMENT = "quickstart_row5"
+QUICKSTART_TRAINING = (f"trainer.max_steps={TRAIN_STEPS}", f"experiment={QUICKSTART_EXPERIMENT}")
 NEXT_HINT = (
     "      add sampling.guidance.music=<w> to choose how strongly the dance follows the music (classifier-free\n"
     "      guidance; default 2.5: 1 = plain conditional sampling, higher = more music-driven and more energetic,\n"
@@ -107,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"next: dgsdp-generate checkpoint={checkpoint} music=<your song> style=<genre or description>")
     print("      (the same as python generate.py ... from a checkout)")
     print(NEXT_HINT)
-    print(f"faster: dgsdp-train experiment=quickstart_row5 distill.teacher={checkpoint}\n"
+    print(f"faster: dgsdp-train experiment={QUICKSTART_EXPERIMENT} distill.teacher={checkpoint}\n"
           "      (from this folder, about 10 minutes) makes a student that samples in one pass per step: use it with\n"
           "      sampling.steps=5, 3-4x faster than this model's default (docs/distillation.md)")  # fmt: skip
     return 1 if failed else 0

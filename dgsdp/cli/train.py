@@ -20,6 +20,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from dgsdp.cli.config import CONFIG_PATH, as_list, check_options
 from dgsdp.cli.runtime import run_main
+from dgsdp.data.datamodule import check_tempo_augment
 from dgsdp.errors import ConfigError
 from dgsdp.registry import build
 from dgsdp.trained import read_checkpoint
@@ -52,9 +53,14 @@ def group_choices() -> dict[str, str]:
     return {g: str(choices.get(g)) for g in GROUP_CHOICES if g in choices}
 
 
+def has_audio_features(cfg: DictConfig) -> bool:
+    """Whether the run has a music encoder (not ``audio=none``)."""
+    return bool(cfg.get("audio")) and cfg.audio.get("_target_") is not None
+
+
 def audio_encoder_from_config(cfg: DictConfig) -> Any:
     """The configured audio encoder (its weights load only when it first encodes), or None for ``audio=none``."""
-    if not cfg.get("audio") or cfg.audio.get("_target_") is None:
+    if not has_audio_features(cfg):
         return None
     return build(cfg.audio, "audio", where="audio")
 
@@ -92,6 +98,7 @@ def check_config(cfg: DictConfig) -> dict[str, Any] | None:
     if precision.startswith("bf16") and on_cpu:
         check_cpu_bf16(f"trainer.precision={precision}")
     devices = trainer.get("devices", 1)
+    check_tempo_augment((cfg.get("data") or {}).get("tempo_augment"), has_features=has_audio_features(cfg))
     if not (devices == "auto" or (isinstance(devices, int) and devices != 0) or OmegaConf.is_list(devices)):
         raise ConfigError(f"trainer.devices must be a positive number, 'auto' or a list of ids, got {devices!r}")
     if cfg.get("evaluate"):

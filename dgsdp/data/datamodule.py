@@ -9,6 +9,7 @@ does no processing and a changed setting never reuses stale data.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +25,7 @@ from dgsdp.audio import AudioEncoder, FeatureCache, load_audio
 from dgsdp.data.aistpp import check_root, load_motion_pkl, music_path, parse_name, process_motion, read_split
 from dgsdp.errors import ConfigError, DataError, DgsdpError
 from dgsdp.motion import POSE_DIM, MinMaxNormalizer, measure_floor_height
+from dgsdp.motion.representation import CONTACT_CHANNELS
 from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
 from dgsdp.utils.io import DiskCache, file_hash
 
@@ -124,8 +126,30 @@ def _same_path(a: Path, b: Path) -> bool:
     return a.expanduser().resolve() == b.expanduser().resolve()
 
 
+def check_tempo_augment(value: Any, has_features: bool) -> tuple[float, float] | None:
+    """``data.tempo_augment`` as (lo, hi) with 0 < lo <= hi, or None; ConfigError otherwise, and where the windows
+    carry no frame-rate music features to stretch with the motion (raw waveforms, or no music)."""
+    if value is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ConfigError(
+            f"data.tempo_augment must be two rates [lo, hi] (e.g. [0.8, 1.25]) or null, got {value!r}"
+        ) from None
+    if not (0 < lo <= hi) or not math.isfinite(hi):
+        raise ConfigError(f"data.tempo_augment=[{lo:g}, {hi:g}] needs 0 < lo <= hi (1 is the recorded tempo)")
+    if not has_features:
+        raise ConfigError(
+            "data.tempo_augment stretches the music features with the motion; it needs an audio encoder that gives "
+            "features per frame (audio=librosa, jukebox or encodec), not raw waveforms or no music"
+        )
+    return lo, hi
+
+
 class WindowDataset(Dataset):
-    """Fixed-length windows over a list of sequences; motion normalised by ``normalizer``."""
+    """Fixed-length windows over a list of sequences; motion normalised by ``normalizer``. With ``tempo_range``
+    (training, ``data.tempo_augment``) each window is played at a random tempo (:meth:`_stretched`)."""
 
     def __init__(
         self,
@@ -136,8 +160,10 @@ class WindowDataset(Dataset):
         stride: int,
         fps: int = 30,
         waveform_sample_rate: int | None = None,
+        tempo_range: tuple[float, float] | None = None,
     ) -> None:
         self.sequences = sequences
+        self.tempo_range = tempo_range
         self.normalizer = normalizer
         self.length = length
         self.fps = fps
@@ -163,6 +189,8 @@ class WindowDataset(Dataset):
     def __getitem__(self, i: int) -> dict[str, Any]:
         seq_i, start = self.index[i]
         seq = self.sequences[seq_i]
+        if self.tempo_range is not None and seq.audio is not None and self.waveform_sample_rate is None:
+            return self._stretched(seq, start)
         motion = torch.from_numpy(seq.motion[start : start + self.length])
         item: dict[str, Any] = {
             "motion": self.normalizer.normalize(motion),
@@ -175,6 +203,46 @@ class WindowDataset(Dataset):
             # a copy of the window: the song's features may be a read-only memory map
             item["audio"] = torch.from_numpy(np.array(self._audio_window(seq.audio, start), dtype=np.float32))
         return item
+
+    def _stretched(self, seq: Sequence, start: int) -> dict[str, Any]:
+        """The window at ``start`` played at a random tempo: ``rate`` in ``tempo_range`` drawn log-uniformly from
+        torch's generator (seeded with the run), and ``(length - 1) * rate`` source frames resampled to ``length``
+        (rate 1.25: the dance and its music 25% faster). Motion and continuous feature columns are interpolated
+        linearly between neighbouring frames (6D rotations too: neighbouring frames are close), the foot contacts
+        rounded back to 0/1, and each binary feature column (onset peaks, beats) keeps its events, each moved to
+        its nearest new frame. A window that would run past the end of its sequence starts earlier; a sequence
+        too short for the rate keeps rate 1."""
+        lo, hi = self.tempo_range
+        rate = lo * (hi / lo) ** float(torch.rand(()))
+        audio = np.asarray(seq.audio)
+        n = min(len(seq.motion), len(audio))
+        span = (self.length - 1) * rate
+        if span > n - 1:
+            rate, span = 1.0, float(self.length - 1)
+        start = int(min(start, n - 1 - math.ceil(span)))
+        t = start + np.arange(self.length) * rate
+        i0 = np.minimum(np.floor(t).astype(np.int64), n - 1)
+        i1 = np.minimum(i0 + 1, n - 1)
+        w = (t - i0)[:, None]
+        motion = seq.motion[i0] * (1 - w) + seq.motion[i1] * w
+        motion[:, CONTACT_CHANNELS] = np.round(motion[:, CONTACT_CHANNELS])
+        features = audio[i0] * (1 - w) + audio[i1] * w
+        binary = np.all((audio == 0) | (audio == 1), axis=0) & np.any(audio == 1, axis=0)
+        if binary.any():
+            source = np.arange(start, min(n, start + math.ceil(span) + 1))
+            target = np.round((source - start) / rate).astype(np.int64)
+            keep = target < self.length
+            for column in np.flatnonzero(binary):
+                features[:, column] = 0.0
+                features[target[keep & (audio[source, column] == 1)], column] = 1.0
+        return {
+            "motion": self.normalizer.normalize(torch.from_numpy(np.asarray(motion, dtype=np.float32))),
+            "genre": seq.genre_index,
+            "music_id": seq.music_id,
+            "name": seq.name,
+            "start": start,
+            "audio": torch.from_numpy(np.asarray(features, dtype=np.float32)),
+        }
 
 
 def distributed_rank_world() -> tuple[int, int]:
@@ -314,8 +382,10 @@ class DanceDataModule(L.LightningDataModule):
         shuffle_seed: int = 0,
         synthetic_root: str | None = None,
         generate_synthetic: bool = False,
+        tempo_augment: tuple[float, float] | None = None,
     ) -> None:
         super().__init__()
+        self.tempo_augment = check_tempo_augment(tempo_augment, has_features=audio_encoder is not None)
         self.synthetic_root = None if synthetic_root is None else Path(synthetic_root).expanduser()
         self.generate_synthetic = bool(generate_synthetic)
         self.shuffle_seed = shuffle_seed
@@ -412,6 +482,7 @@ class DanceDataModule(L.LightningDataModule):
                 stride=stride,
                 fps=self.fps,
                 waveform_sample_rate=self.waveform_sample_rate if self.audio_encoder is None else None,
+                tempo_range=self.tempo_augment if name == "train" else None,
             )
             short = count_short(ds.sequences, self.length)
             if short:

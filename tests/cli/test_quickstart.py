@@ -15,6 +15,6 @@ def test_quickstart_runs_end_to_end_and_prints_its_stages(tmp_path, monkeypatch,
     assert "[1/2] training the small model for 2 steps" in out and "[1/2] trained in" in out
     assert "[2/2] danced in" in out and "total:" in out
     assert "sampling.guidance.music=<w>" in out  # the hint explains guidance
-    assert "dgsdp-train experiment=quickstart_row5 distill.teacher=" in out  # and how to make a faster student
+    assert f"dgsdp-train experiment={quickstart.QUICKSTART_EXPERIMENT} distill.teacher=" in out  # a faster student
     dances = sorted(p.relative_to(tmp_path) for p in tmp_path.glob("outputs/quickstart/*/dances/*/*.npy"))
     assert [p.parent.name for p in dances] == ["free_text", "genre"]

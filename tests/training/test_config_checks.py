@@ -23,11 +23,13 @@ from dgsdp.errors import CheckpointError, ConfigError, DgsdpError
         ("trainer.devices=0", "trainer.devices must be a positive number"),
         ("evaluate=table9", "evaluate: 'table9' is not one of bailando, table1, table2, table3"),
         ("ckpt_path=/nonexistent/last.ckpt", "does not exist"),
+        ("data.tempo_augment=[1.2,0.9]", "needs 0 < lo <= hi"),
+        ("audio=none data.tempo_augment=[0.8,1.25]", "needs an audio encoder that gives features per frame"),
     ],
 )
 def test_bad_settings_fail_before_any_data_is_prepared(tmp_path, override, message):
     data = {"root": str(tmp_path / "no-dataset-here"), "cache": str(tmp_path / "cache")}
-    cfg = compose_config("train", tiny_overrides(data, override), output_dir=tmp_path / "run")
+    cfg = compose_config("train", tiny_overrides(data, *override.split()), output_dir=tmp_path / "run")
     with pytest.raises(ConfigError, match=message):
         train(cfg)
     assert not (tmp_path / "no-dataset-here").exists() and not (tmp_path / "cache").exists()

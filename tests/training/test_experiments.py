@@ -12,14 +12,15 @@ from dgsdp.training import DanceDiffusion
 
 EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
 # the quick start's ablation (sweeps/quickstart.yaml): small model, one change per row;
-# row: (velocity loss weight, audio.rhythm_only, audio.beat_phase, steps, pause loss weight)
+# row: (velocity loss weight, audio.rhythm_only, audio.beat_phase, steps, pause loss weight, data.tempo_augment)
 QUICKSTART_ROWS = {
-    "quickstart_row0": (0.0, False, False, 500, 0.0),
-    "quickstart_row1": (2.964, False, False, 500, 0.0),
-    "quickstart_row2": (2.964, True, False, 500, 0.0),
-    "quickstart_row3": (2.964, True, True, 500, 0.0),
-    "quickstart_row4": (2.964, True, False, 1000, 0.0),
-    "quickstart_row5": (2.964, True, False, 1000, 6.0),
+    "quickstart_row0": (0.0, False, False, 500, 0.0, None),
+    "quickstart_row1": (2.964, False, False, 500, 0.0, None),
+    "quickstart_row2": (2.964, True, False, 500, 0.0, None),
+    "quickstart_row3": (2.964, True, True, 500, 0.0, None),
+    "quickstart_row4": (2.964, True, False, 1000, 0.0, None),
+    "quickstart_row5": (2.964, True, False, 1000, 6.0, None),
+    "quickstart_row6": (2.964, True, False, 1000, 6.0, [0.8, 1.25]),
 }
 PAPER_SIZE = [name for name in EXPERIMENTS if name not in QUICKSTART_ROWS]
 PAPER_ROWS = {
@@ -76,7 +77,7 @@ def test_experiment_composes_and_builds_paper_size_model(name, tmp_path):
 
 @pytest.mark.parametrize("name", sorted(QUICKSTART_ROWS))
 def test_quickstart_rows_change_one_thing_each(name, tmp_path):
-    from dgsdp.quickstart import QUICKSTART_TRAINING
+    from dgsdp.quickstart import QUICKSTART_EXPERIMENT, QUICKSTART_TRAINING
 
     cfg = compose_config("train", [f"experiment={name}"], output_dir=tmp_path)
     row = QUICKSTART_ROWS[name]
@@ -86,6 +87,7 @@ def test_quickstart_rows_change_one_thing_each(name, tmp_path):
         cfg.audio.beat_phase,
         cfg.trainer.max_steps,
         cfg.loss.pause,
+        cfg.data.tempo_augment if cfg.data.tempo_augment is None else list(cfg.data.tempo_augment),
     ) == row
     assert cfg.loss.simple == 1.0 and cfg.loss.fk == 0.0 and cfg.loss.foot == 0.0
     assert (cfg.optimizer.lr, cfg.model.ema_decay) == (1e-3, 0.98)
@@ -95,11 +97,12 @@ def test_quickstart_rows_change_one_thing_each(name, tmp_path):
         style_bank_size=0, groups={},
     )  # fmt: skip
     assert spec.conditioning.audio_dim == 35 + 2 * cfg.audio.beat_phase
-    # the quick start trains row 5
+    # the quick start trains its experiment's row
     quick = compose_config("train", list(QUICKSTART_TRAINING), output_dir=tmp_path)
     assert (
-        quick.loss.velocity, quick.audio.rhythm_only, quick.audio.beat_phase, quick.trainer.max_steps, quick.loss.pause
-    ) == QUICKSTART_ROWS["quickstart_row5"]  # fmt: skip
+        quick.loss.velocity, quick.audio.rhythm_only, quick.audio.beat_phase, quick.trainer.max_steps, quick.loss.pause,
+        quick.data.tempo_augment if quick.data.tempo_augment is None else list(quick.data.tempo_augment),
+    ) == QUICKSTART_ROWS[QUICKSTART_EXPERIMENT]  # fmt: skip
 
 
 def test_edge_parameter_count_matches_paper(tmp_path):
