@@ -76,22 +76,42 @@ def _hydra_runtime(cfg: DictConfig) -> Iterator[None]:
             _composed[0] = HydraConfig.instance().cfg
 
 
+@contextlib.contextmanager
+def _outside_running_hydra() -> Iterator[None]:
+    """Inside a running Hydra job (a sweep's job in a joblib worker, which gets the launcher's global state) Hydra's
+    global instance is set, and ``initialize`` refuses to set it again: it is set aside for the block and put back
+    afterwards."""
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.singleton import Singleton
+
+    running = Singleton._instances.get(GlobalHydra)
+    if running is None or not running.is_initialized():
+        yield
+        return
+    del Singleton._instances[GlobalHydra]
+    try:
+        yield
+    finally:
+        Singleton._instances[GlobalHydra] = running
+
+
 def compose_config(
     config_name: str = "train", overrides: Sequence[str] = (), output_dir: str | Path | None = None
 ) -> DictConfig:
     """Compose ``train``, ``generate`` or ``evaluate`` with command-line style overrides, as the entry point
     would, fully resolved. ``output_dir`` stands for the run folder Hydra would create (``paths.output_dir``).
 
-    Safe inside a running Hydra job (evaluation after training): Hydra's global state is backed up and
-    restored by its ``initialize`` context, and the job's HydraConfig is left as it was."""
+    Safe inside a running Hydra job (evaluation after training, also in a sweep's worker process): Hydra's global
+    state is set aside for the composition and put back, and the job's HydraConfig is left as it was."""
     from hydra import compose, initialize, initialize_config_module
 
-    if config_name == "generate":
-        with generate_configs(), initialize(version_base="1.3", config_path=None):
-            cfg = compose(GENERATE_CONFIG_NAME, overrides=list(overrides), return_hydra_config=True)
-    else:
-        with initialize_config_module(CONFIG_MODULE, version_base="1.3"):
-            cfg = compose(config_name, overrides=list(overrides), return_hydra_config=True)
+    with _outside_running_hydra():
+        if config_name == "generate":
+            with generate_configs(), initialize(version_base="1.3", config_path=None):
+                cfg = compose(GENERATE_CONFIG_NAME, overrides=list(overrides), return_hydra_config=True)
+        else:
+            with initialize_config_module(CONFIG_MODULE, version_base="1.3"):
+                cfg = compose(config_name, overrides=list(overrides), return_hydra_config=True)
     with read_write(cfg), open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(output_dir) if output_dir is not None else cfg.hydra.run.dir
     with _hydra_runtime(cfg):
