@@ -97,8 +97,8 @@ def check_config(cfg: DictConfig) -> dict[str, Any] | None:
     on_cpu = accelerator == "cpu" or (accelerator == "auto" and not torch.cuda.is_available())
     if precision.startswith("bf16") and on_cpu:
         check_cpu_bf16(f"trainer.precision={precision}")
-    devices = trainer.get("devices", 1)
     check_tempo_augment((cfg.get("data") or {}).get("tempo_augment"), has_features=has_audio_features(cfg))
+    devices = trainer.get("devices", 1)
     if not (devices == "auto" or (isinstance(devices, int) and devices != 0) or OmegaConf.is_list(devices)):
         raise ConfigError(f"trainer.devices must be a positive number, 'auto' or a list of ids, got {devices!r}")
     if cfg.get("evaluate"):

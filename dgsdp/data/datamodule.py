@@ -189,9 +189,11 @@ class WindowDataset(Dataset):
     def __getitem__(self, i: int) -> dict[str, Any]:
         seq_i, start = self.index[i]
         seq = self.sequences[seq_i]
+        audio = None
         if self.tempo_range is not None and seq.audio is not None and self.waveform_sample_rate is None:
-            return self._stretched(seq, start)
-        motion = torch.from_numpy(seq.motion[start : start + self.length])
+            start, motion, audio = self._stretched(seq, start)
+        else:
+            motion = torch.from_numpy(seq.motion[start : start + self.length])
         item: dict[str, Any] = {
             "motion": self.normalizer.normalize(motion),
             "genre": seq.genre_index,
@@ -199,19 +201,21 @@ class WindowDataset(Dataset):
             "name": seq.name,
             "start": start,
         }
-        if seq.audio is not None:
+        if audio is not None:
+            item["audio"] = audio
+        elif seq.audio is not None:
             # a copy of the window: the song's features may be a read-only memory map
             item["audio"] = torch.from_numpy(np.array(self._audio_window(seq.audio, start), dtype=np.float32))
         return item
 
-    def _stretched(self, seq: Sequence, start: int) -> dict[str, Any]:
+    def _stretched(self, seq: Sequence, start: int) -> tuple[int, torch.Tensor, torch.Tensor]:
         """The window at ``start`` played at a random tempo: ``rate`` in ``tempo_range`` drawn log-uniformly from
         torch's generator (seeded with the run), and ``(length - 1) * rate`` source frames resampled to ``length``
         (rate 1.25: the dance and its music 25% faster). Motion and continuous feature columns are interpolated
         linearly between neighbouring frames (6D rotations too: neighbouring frames are close), the foot contacts
         rounded back to 0/1, and each binary feature column (onset peaks, beats) keeps its events, each moved to
         its nearest new frame. A window that would run past the end of its sequence starts earlier; a sequence
-        too short for the rate keeps rate 1."""
+        too short for the rate keeps rate 1. Returns (start, motion (length, 151), features (length, F))."""
         lo, hi = self.tempo_range
         rate = lo * (hi / lo) ** float(torch.rand(()))
         audio = np.asarray(seq.audio)
@@ -235,14 +239,7 @@ class WindowDataset(Dataset):
             for column in np.flatnonzero(binary):
                 features[:, column] = 0.0
                 features[target[keep & (audio[source, column] == 1)], column] = 1.0
-        return {
-            "motion": self.normalizer.normalize(torch.from_numpy(np.asarray(motion, dtype=np.float32))),
-            "genre": seq.genre_index,
-            "music_id": seq.music_id,
-            "name": seq.name,
-            "start": start,
-            "audio": torch.from_numpy(np.asarray(features, dtype=np.float32)),
-        }
+        return start, torch.from_numpy(motion.astype(np.float32)), torch.from_numpy(features.astype(np.float32))
 
 
 def distributed_rank_world() -> tuple[int, int]:
