@@ -40,7 +40,10 @@ TRAIN_STEPS = 1000
 #   songs;
 # - 1000 steps instead of 500: the raw dances move at the training data's speed instead of half of it;
 # - the pause term (loss.pause=6): the velocity error again where the training dance holds still, which is on the
-#   beat; with it the raw dances slow down before the beat as the training dances do.
+#   beat; with it the raw dances slow down before the beat as the training dances do;
+# - synthetic songs with off-beat layers (data.synthetic.offbeats, the dataset's default; row 7 is row 5 without
+#   them): real songs have onsets halfway between the beats, and a model trained on songs without them paused on
+#   those too.
 QUICKSTART_EXPERIMENT = "quickstart_row5"
 QUICKSTART_TRAINING = (f"trainer.max_steps={TRAIN_STEPS}", f"experiment={QUICKSTART_EXPERIMENT}")
 NEXT_HINT = (

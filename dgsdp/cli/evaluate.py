@@ -41,22 +41,26 @@ def _data_location(cfg: DictConfig, spec: RunSpec) -> tuple[Path, Path]:
     if cfg.data.get("root"):
         return Path(str(cfg.data.root)).expanduser(), cache
     root = data.get("root")
-    if root and (Path(str(root)).expanduser() / "motions").is_dir():
-        return Path(str(root)).expanduser(), cache
     synthetic = data.get("synthetic")
     if isinstance(synthetic, dict):
         import inspect
 
-        from dgsdp.data.synthetic import generate_synthetic_aistpp
+        from dgsdp.data.synthetic import generate_synthetic_aistpp, outdated_synthetic, synthetic_folder
 
         params = inspect.signature(generate_synthetic_aistpp).parameters
-        # stored settings are data: only the generator's own numeric parameters are taken
-        settings = {k: v for k, v in synthetic.items() if k in params and type(v) in (int, float)}
-        local = Path(str(cfg.paths.data_dir)).expanduser() / "synthetic"
-        if not (local / "motions").is_dir():
+        # stored settings are data: only the generator's own numeric and boolean parameters are taken
+        settings = {k: v for k, v in synthetic.items() if k in params and type(v) in (int, float, bool)}
+        settings.setdefault("offbeats", False)  # runs stored without the setting were trained before it existed
+        if root and (Path(str(root)).expanduser() / "motions").is_dir():
+            if not outdated_synthetic(Path(str(root)).expanduser(), **settings):
+                return Path(str(root)).expanduser(), cache
+        local = Path(str(cfg.paths.data_dir)).expanduser() / synthetic_folder(settings["offbeats"])
+        if not (local / "motions").is_dir() or outdated_synthetic(local, **settings):
             log.info("regenerating the checkpoint's synthetic dataset in %s", local)
             generate_synthetic_aistpp(local, **settings)
         return local, cache
+    if root and (Path(str(root)).expanduser() / "motions").is_dir():
+        return Path(str(root)).expanduser(), cache
     raise ConfigError(
         f"the dataset the checkpoint was trained on ({root or 'not recorded'}) is not here; give "
         "data.root=<AIST++-layout folder>"

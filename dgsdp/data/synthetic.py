@@ -22,6 +22,7 @@ import time
 import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -50,6 +51,7 @@ class SyntheticSettings:
     sample_rate_hz: int = 44100
     genres: tuple[str, ...] = GENRE_CODES
     num_ignored: int = 1
+    offbeats: bool = True  # off-beat layers in most songs (dgsdp.data.synthetic_music); False: the data before them
     generator_version: int = GENERATOR_VERSION
 
     def validate(self) -> None:
@@ -117,10 +119,46 @@ def _manifest_matches(out_dir: Path, settings: SyntheticSettings) -> bool:
     if not path.is_file():
         return False
     try:
-        found = json.loads(path.read_text())["settings"]
+        found = dict(json.loads(path.read_text())["settings"])
     except (OSError, ValueError, KeyError, TypeError):
         return False
+    found.setdefault("offbeats", False)  # written before the off-beat layers existed: the same bytes as without
     return found == json.loads(json.dumps(asdict(settings)))
+
+
+def synthetic_folder(offbeats: bool = True) -> str:
+    """Name of the synthetic dataset's folder under the data folder: ``synthetic``, or ``synthetic_no_offbeats``
+    for the data before the off-beat layers (quick-start row 7 and older checkpoints)."""
+    return "synthetic" if offbeats else "synthetic_no_offbeats"
+
+
+def outdated_synthetic(out_dir: str | Path, **settings: Any) -> bool:
+    """True if ``out_dir`` holds a complete synthetic dataset made with other settings than
+    :func:`generate_synthetic_aistpp` would use with ``settings`` (e.g. before ``offbeats`` existed)."""
+    out_dir = Path(out_dir)
+    if not (out_dir / MANIFEST).is_file():
+        return False
+    return not _manifest_matches(out_dir, _settings(**settings))
+
+
+def _settings(
+    seed: int = 0,
+    sequences_per_genre: int = 8,
+    seconds: float = 16.0,
+    sample_rate_hz: int = 44100,
+    genres: tuple[str, ...] | list[str] | None = None,
+    num_ignored: int = 1,
+    offbeats: bool = True,
+) -> SyntheticSettings:
+    return SyntheticSettings(
+        seed=seed,
+        sequences_per_genre=sequences_per_genre,
+        seconds=float(seconds),
+        sample_rate_hz=sample_rate_hz,
+        genres=tuple(genres) if genres is not None else GENRE_CODES,
+        num_ignored=num_ignored,
+        offbeats=bool(offbeats),
+    )
 
 
 def _check_folder(out_dir: Path) -> None:
@@ -153,6 +191,7 @@ def generate_synthetic_aistpp(
     sample_rate_hz: int = 44100,
     genres: tuple[str, ...] | list[str] | None = None,
     num_ignored: int = 1,
+    offbeats: bool = True,
     overwrite: bool = False,
     verbose: bool = False,
 ) -> Path:
@@ -161,16 +200,10 @@ def generate_synthetic_aistpp(
     Returns at once if ``out_dir`` already holds a complete dataset made with the same settings (unless
     ``overwrite``). ``seconds`` is the length of every dance and its music; the default (10 genres x 8 dances
     x 16 s, one extra ignored take) takes seconds to make. The wavs are 44.1 kHz so that a beat tracker's
-    tempo grid (hop 512) resolves the tempi to within about 1 BPM.
+    tempo grid (hop 512) resolves the tempi to within about 1 BPM. ``offbeats``: most songs get a hit halfway
+    between the beats, as real songs do (False: the songs of the dataset before that layer, byte for byte).
     """
-    settings = SyntheticSettings(
-        seed=seed,
-        sequences_per_genre=sequences_per_genre,
-        seconds=float(seconds),
-        sample_rate_hz=sample_rate_hz,
-        genres=tuple(genres) if genres is not None else GENRE_CODES,
-        num_ignored=num_ignored,
-    )
+    settings = _settings(seed, sequences_per_genre, seconds, sample_rate_hz, genres, num_ignored, offbeats)
     settings.validate()
     out_dir = Path(out_dir)
     if not overwrite and _manifest_matches(out_dir, settings):
@@ -192,7 +225,7 @@ def generate_synthetic_aistpp(
         first_beat_s = float(rng.uniform(0.1, 0.1 + 60.0 / bpm))
         audio, beat_times = synthesize_music(
             music_id[1:3], bpm, settings.seconds, first_beat_s=first_beat_s,
-            sample_rate_hz=settings.sample_rate_hz, rng=rng,
+            sample_rate_hz=settings.sample_rate_hz, rng=rng, offbeats=settings.offbeats,
         )  # fmt: skip
         atomic_write_bytes(out_dir / "wavs" / f"{music_id}.wav", wav_bytes(audio, settings.sample_rate_hz))
         music[music_id] = {"genre": music_id[1:3], "bpm": bpm, "first_beat_s": first_beat_s}
@@ -272,6 +305,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--sample-rate", type=int, default=44100, help="wav sample rate in Hz")
     parser.add_argument("--genres", nargs="+", default=None, help=f"subset of {' '.join(GENRE_CODES)}")
     parser.add_argument("--num-ignored", type=int, default=1, help="extra bad takes listed in ignore_list.txt")
+    parser.add_argument(
+        "--no-offbeats", action="store_true", help="no off-beat layers in the songs (the data before them)"
+    )
     parser.add_argument("--overwrite", action="store_true", help="generate even if a matching dataset exists")
     parser.add_argument("--verbose", action="store_true")
     args = parser.parse_args(argv)
@@ -280,7 +316,7 @@ def main(argv: list[str] | None = None) -> None:
         out = generate_synthetic_aistpp(
             args.out, seed=args.seed, sequences_per_genre=args.sequences_per_genre, seconds=args.seconds,
             sample_rate_hz=args.sample_rate, genres=args.genres, num_ignored=args.num_ignored,
-            overwrite=args.overwrite, verbose=args.verbose,
+            offbeats=not args.no_offbeats, overwrite=args.overwrite, verbose=args.verbose,
         )  # fmt: skip
     except (ConfigError, DataError) as err:
         parser.exit(2, f"error: {err}\n")

@@ -2,8 +2,11 @@
 
 Every beat carries a strong percussive hit, so a beat tracker finds the tempo the music id encodes; what lies
 between the beats (ghost notes, off-beat hats, swung eighths) and the sounds themselves (kick pitch, snare colour,
-bass, chords) follow the genre. Sub-beat events are kept quiet and a soft noise bed sits under everything, so
-they never pull a tracker to double tempo.
+bass, chords) follow the genre. The genres' own sub-beat events are quiet and a soft noise bed sits under
+everything. Most songs also get an off-beat layer (``offbeats``, drawn per song): a hat, chord stab, clap or snare
+halfway between the beats at up to 0.6 of a beat hit's level, as real songs have (their onset envelope, averaged
+over eighths of the beat, peaks on the beat and again at the half beat); a model trained without it learns that
+every onset is a beat.
 
 Each song is then mastered as real recordings are, with settings drawn per song: a loudness between -30 and
 -6 LUFS (BS.1770), clean, soft-limited or hard-clipped dynamics, a brighter or darker spectrum, a noise floor and
@@ -224,6 +227,9 @@ SUSTAIN_RANGE = (0.05, 0.35)  # its level against the drums' peak
 LEAD_PROB = 0.6  # songs with a melody: one note per beat or two, from the key's pentatonic scale
 LEAD_RANGE = (0.1, 0.5)
 TRANSPOSE_RANGE = (-5, 6)  # semitones: the genre's key moved per song, so chroma covers every pitch class
+OFFBEAT_PROB = 0.7  # songs with an off-beat layer (with ``offbeats``): one hit halfway between every two beats
+OFFBEAT_RANGE = (0.15, 0.6)  # its level against a beat's hit (1.0)
+OFFBEAT_SOUNDS = ("openhat", "tone", "clap", "snare")  # hats, a chord stab (a skank), claps, a snare
 
 
 @dataclass(frozen=True)
@@ -241,11 +247,15 @@ class Mastering:
     lead_wave: str = "sine"
     eq_hz: float = 1000.0
     eq_db: float = 0.0
+    offbeat: float = 0.0  # level of the off-beat layer (0: none)
+    offbeat_sound: str = "openhat"
 
 
-def draw_mastering(rng: np.random.Generator) -> Mastering:
+def draw_mastering(rng: np.random.Generator, offbeats: bool = True) -> Mastering:
+    """One song's mastering; with ``offbeats`` also its off-beat layer (drawn last: without it the draws, and so
+    the songs, are those of the dataset before the layer existed)."""
     dynamics = str(rng.choice(DYNAMICS, p=DYNAMICS_PROBS))
-    return Mastering(
+    m = Mastering(
         loudness_lufs=float(rng.uniform(*LOUDNESS_RANGE_LUFS)),
         dynamics=dynamics,
         drive_db=float(rng.uniform(3.0, 18.0)) if dynamics != "clean" else 0.0,
@@ -258,6 +268,10 @@ def draw_mastering(rng: np.random.Generator) -> Mastering:
         eq_hz=float(np.exp(rng.uniform(*np.log(EQ_RANGE_HZ)))),
         eq_db=float(rng.uniform(*EQ_RANGE_DB)),
     )
+    if not offbeats:
+        return m
+    level = float(rng.uniform(*OFFBEAT_RANGE)) if rng.random() < OFFBEAT_PROB else 0.0
+    return replace(m, offbeat=level, offbeat_sound=str(rng.choice(OFFBEAT_SOUNDS)))
 
 
 def _one_pole_lowpass(x: np.ndarray, cutoff_hz: float, sample_rate_hz: int) -> np.ndarray:
@@ -328,14 +342,16 @@ def synthesize_music(
     sample_rate_hz: int,
     rng: np.random.Generator,
     mastering: Mastering | None = None,
+    offbeats: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """A genre's drum-machine loop at ``bpm``, mixed and mastered (see :func:`master`).
 
     Returns audio (S,) float32 in [-1, 1] and the beat times (B,) in seconds: one beat every 60 / bpm seconds
     from ``first_beat_s``. ``rng`` varies the sounds, the chord progression and, unless ``mastering`` is given,
-    the mastering (loudness, dynamics, brightness, noise, a sustained layer: :func:`draw_mastering`).
+    the mastering (loudness, dynamics, brightness, noise, a sustained layer and, with ``offbeats``, an off-beat
+    layer: :func:`draw_mastering`).
     """
-    m = mastering if mastering is not None else draw_mastering(rng)
+    m = mastering if mastering is not None else draw_mastering(rng, offbeats)
     style = MUSIC_STYLES[genre]
     style = replace(style, root_hz=style.root_hz * 2.0 ** (m.transpose / 12))
     sr = sample_rate_hz
@@ -346,6 +362,8 @@ def synthesize_music(
     # Every beat also gets a short broadband click, so that the beats, not quieter off-beat cymbals, carry the
     # strongest onsets in every frequency band.
     hits = style.hits + _on_beats("hat", 0.5)
+    if m.offbeat > 0:
+        hits = hits + _on_beats(m.offbeat_sound, m.offbeat, EIGHTHS_OFF)
     out = np.zeros(total + max(len(s) for s in sounds.values()), dtype=np.float64)  # tail room for the last hits
 
     # Bars start one beat-pattern before the first beat so that pickup events fill the start.

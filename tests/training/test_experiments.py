@@ -12,16 +12,28 @@ from dgsdp.training import DanceDiffusion
 
 EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
 # the quick start's ablation (sweeps/quickstart.yaml): small model, one change per row;
-# row: (velocity loss weight, audio.rhythm_only, audio.beat_phase, steps, pause loss weight, data.tempo_augment)
+# row: (velocity loss weight, audio.rhythm_only, audio.beat_phase, steps, pause loss weight, data.tempo_augment,
+# data.synthetic.offbeats)
 QUICKSTART_ROWS = {
-    "quickstart_row0": (0.0, False, False, 500, 0.0, None),
-    "quickstart_row1": (2.964, False, False, 500, 0.0, None),
-    "quickstart_row2": (2.964, True, False, 500, 0.0, None),
-    "quickstart_row3": (2.964, True, True, 500, 0.0, None),
-    "quickstart_row4": (2.964, True, False, 1000, 0.0, None),
-    "quickstart_row5": (2.964, True, False, 1000, 6.0, None),
-    "quickstart_row6": (2.964, True, False, 1000, 6.0, [0.8, 1.25]),
+    "quickstart_row0": (0.0, False, False, 500, 0.0, None, True),
+    "quickstart_row1": (2.964, False, False, 500, 0.0, None, True),
+    "quickstart_row2": (2.964, True, False, 500, 0.0, None, True),
+    "quickstart_row3": (2.964, True, True, 500, 0.0, None, True),
+    "quickstart_row4": (2.964, True, False, 1000, 0.0, None, True),
+    "quickstart_row5": (2.964, True, False, 1000, 6.0, None, True),
+    "quickstart_row6": (2.964, True, False, 1000, 6.0, [0.8, 1.25], True),
+    "quickstart_row7": (2.964, True, False, 1000, 6.0, None, False),
 }
+
+
+def _row(cfg) -> tuple:
+    tempo = cfg.data.tempo_augment
+    return (
+        cfg.loss.velocity, cfg.audio.rhythm_only, cfg.audio.beat_phase, cfg.trainer.max_steps, cfg.loss.pause,
+        tempo if tempo is None else list(tempo), cfg.data.synthetic.offbeats,
+    )  # fmt: skip
+
+
 PAPER_SIZE = [name for name in EXPERIMENTS if name not in QUICKSTART_ROWS]
 PAPER_ROWS = {
     # row: (audio, style kind, injection mode)
@@ -80,15 +92,11 @@ def test_quickstart_rows_change_one_thing_each(name, tmp_path):
     from dgsdp.quickstart import QUICKSTART_EXPERIMENT, QUICKSTART_TRAINING
 
     cfg = compose_config("train", [f"experiment={name}"], output_dir=tmp_path)
-    row = QUICKSTART_ROWS[name]
-    assert (
-        cfg.loss.velocity,
-        cfg.audio.rhythm_only,
-        cfg.audio.beat_phase,
-        cfg.trainer.max_steps,
-        cfg.loss.pause,
-        cfg.data.tempo_augment if cfg.data.tempo_augment is None else list(cfg.data.tempo_augment),
-    ) == row
+    assert _row(cfg) == QUICKSTART_ROWS[name]
+    # the data without off-beat layers lives in its own folder: rows of one sweep never regenerate each other's
+    default = compose_config("train", [], output_dir=tmp_path).data
+    assert (cfg.data.root == default.root) == cfg.data.synthetic.offbeats
+    assert cfg.data.synthetic_root == cfg.data.root
     assert cfg.loss.simple == 1.0 and cfg.loss.fk == 0.0 and cfg.loss.foot == 0.0
     assert (cfg.optimizer.lr, cfg.model.ema_decay) == (1e-3, 0.98)
     assert cfg.run_name == name and cfg.model.d_model == compose_config("train", []).model.d_model  # small model
@@ -99,10 +107,7 @@ def test_quickstart_rows_change_one_thing_each(name, tmp_path):
     assert spec.conditioning.audio_dim == 35 + 2 * cfg.audio.beat_phase
     # the quick start trains its experiment's row
     quick = compose_config("train", list(QUICKSTART_TRAINING), output_dir=tmp_path)
-    assert (
-        quick.loss.velocity, quick.audio.rhythm_only, quick.audio.beat_phase, quick.trainer.max_steps, quick.loss.pause,
-        quick.data.tempo_augment if quick.data.tempo_augment is None else list(quick.data.tempo_augment),
-    ) == QUICKSTART_ROWS[QUICKSTART_EXPERIMENT]  # fmt: skip
+    assert _row(quick) == QUICKSTART_ROWS[QUICKSTART_EXPERIMENT]
 
 
 def test_edge_parameter_count_matches_paper(tmp_path):
