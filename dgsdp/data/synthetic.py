@@ -20,7 +20,7 @@ import pickle
 import sys
 import time
 import zlib
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -141,24 +141,10 @@ def outdated_synthetic(out_dir: str | Path, **settings: Any) -> bool:
     return not _manifest_matches(out_dir, _settings(**settings))
 
 
-def _settings(
-    seed: int = 0,
-    sequences_per_genre: int = 8,
-    seconds: float = 16.0,
-    sample_rate_hz: int = 44100,
-    genres: tuple[str, ...] | list[str] | None = None,
-    num_ignored: int = 1,
-    offbeats: bool = True,
-) -> SyntheticSettings:
-    return SyntheticSettings(
-        seed=seed,
-        sequences_per_genre=sequences_per_genre,
-        seconds=float(seconds),
-        sample_rate_hz=sample_rate_hz,
-        genres=tuple(genres) if genres is not None else GENRE_CODES,
-        num_ignored=num_ignored,
-        offbeats=bool(offbeats),
-    )
+def _settings(genres: tuple[str, ...] | list[str] | None = None, **settings: Any) -> SyntheticSettings:
+    """The settings for :func:`generate_synthetic_aistpp`'s keywords (the dataclass's defaults for the others)."""
+    chosen = SyntheticSettings(genres=tuple(genres) if genres is not None else GENRE_CODES, **settings)
+    return replace(chosen, seconds=float(chosen.seconds), offbeats=bool(chosen.offbeats))
 
 
 def _check_folder(out_dir: Path) -> None:
@@ -203,7 +189,10 @@ def generate_synthetic_aistpp(
     tempo grid (hop 512) resolves the tempi to within about 1 BPM. ``offbeats``: most songs get a hit halfway
     between the beats, as real songs do (False: the songs of the dataset before that layer, byte for byte).
     """
-    settings = _settings(seed, sequences_per_genre, seconds, sample_rate_hz, genres, num_ignored, offbeats)
+    settings = _settings(
+        genres, seed=seed, sequences_per_genre=sequences_per_genre, seconds=seconds, sample_rate_hz=sample_rate_hz,
+        num_ignored=num_ignored, offbeats=offbeats,
+    )  # fmt: skip
     settings.validate()
     out_dir = Path(out_dir)
     if not overwrite and _manifest_matches(out_dir, settings):
