@@ -428,16 +428,17 @@ class DanceDataModule(L.LightningDataModule):
         if self.synthetic is not None:
             from dgsdp.data.synthetic import generate_synthetic_aistpp, outdated_synthetic
 
+            at_default = self.synthetic_root is not None and _same_path(self.root, self.synthetic_root)
             missing = not (self.root / "motions").is_dir()
-            if missing or outdated_synthetic(self.root, **self.synthetic):
-                at_default = self.synthetic_root is not None and _same_path(self.root, self.synthetic_root)
-                if not (at_default or self.generate_synthetic):
-                    what = "no dataset" if missing else "a synthetic dataset made with other settings"
-                    raise DataError(
-                        f"{what} at data.root={self.root}. Check the path; to generate the synthetic dataset in that "
-                        f"folder on purpose, add data.generate_synthetic=true (or run 'python -m "
-                        f"dgsdp.data.synthetic --out {self.root}{' --overwrite' if not missing else ''}')"
-                    )
+            if missing and not (at_default or self.generate_synthetic):
+                raise DataError(
+                    f"no dataset at data.root={self.root} (no 'motions/' folder there). Check the path; to generate "
+                    f"the synthetic dataset in that folder on purpose, add data.generate_synthetic=true "
+                    f"(or run 'python -m dgsdp.data.synthetic --out {self.root}')"
+                )
+            # in its own folder, a synthetic dataset made with other settings (e.g. before data.synthetic.offbeats)
+            # is made again; a dataset anywhere else is used as it is
+            if missing or (at_default and outdated_synthetic(self.root, **self.synthetic)):
                 log.info(
                     "%s the synthetic AIST++ dataset in %s", "generating" if missing else "regenerating", self.root
                 )

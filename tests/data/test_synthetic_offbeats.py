@@ -20,7 +20,6 @@ from dgsdp.data.synthetic_music import (
     draw_mastering,
     synthesize_music,
 )
-from dgsdp.errors import DataError
 
 SR = 22050
 HOP = 512
@@ -89,17 +88,19 @@ def test_a_dataset_made_with_other_settings_is_outdated(tmp_path: Path):
     assert not outdated_synthetic(tmp_path / "nothing-here", **TINY)
 
 
-def test_the_datamodule_regenerates_an_outdated_synthetic_dataset_only_where_allowed(tmp_path: Path):
+def test_the_datamodule_regenerates_an_outdated_synthetic_dataset_in_its_own_folder_only(tmp_path: Path):
     root = generate_synthetic_aistpp(tmp_path / "syn", offbeats=False, **TINY)
     before = (root / "wavs" / "mBR0.wav").read_bytes()
     wanted = {**TINY, "offbeats": True}
-    elsewhere = DanceDataModule(str(root), str(tmp_path / "cache"), synthetic=wanted, progress=False)
-    with pytest.raises(DataError, match="other settings.*generate_synthetic=true"):
-        elsewhere.prepare_data()
-    assert (root / "wavs" / "mBR0.wav").read_bytes() == before  # nothing touched
+    # given as data.root elsewhere: used as it is (a dataset made on purpose with its own settings)
+    DanceDataModule(str(root), str(tmp_path / "cache"), synthetic=wanted, progress=False).prepare_data()
+    assert (root / "wavs" / "mBR0.wav").read_bytes() == before
+    assert outdated_synthetic(root, **wanted)
+    # the synthetic dataset's own folder: made again with the settings asked for
     own = DanceDataModule(
         str(root), str(tmp_path / "cache"), synthetic=wanted, synthetic_root=str(root), progress=False
     )
     own.prepare_data()
     assert read_manifest(root)["settings"]["offbeats"] is True
     assert not outdated_synthetic(root, **wanted)
+    assert (root / "wavs" / "mBR0.wav").read_bytes() != before
