@@ -40,7 +40,8 @@ def _data_location(cfg: DictConfig, spec: RunSpec) -> tuple[Path, Path]:
     cache = Path(str(cfg.data.get("cache_dir") or cfg.paths.cache_dir)).expanduser()
     if cfg.data.get("root"):
         return Path(str(cfg.data.root)).expanduser(), cache
-    root = data.get("root")
+    root = Path(str(data["root"])).expanduser() if data.get("root") else None
+    stored = root is not None and (root / "motions").is_dir()
     synthetic = data.get("synthetic")
     if isinstance(synthetic, dict):
         import inspect
@@ -51,16 +52,15 @@ def _data_location(cfg: DictConfig, spec: RunSpec) -> tuple[Path, Path]:
         # stored settings are data: only the generator's own numeric and boolean parameters are taken
         settings = {k: v for k, v in synthetic.items() if k in params and type(v) in (int, float, bool)}
         settings.setdefault("offbeats", False)  # runs stored without the setting were trained before it existed
-        if root and (Path(str(root)).expanduser() / "motions").is_dir():
-            if not outdated_synthetic(Path(str(root)).expanduser(), **settings):
-                return Path(str(root)).expanduser(), cache
+        if stored and not outdated_synthetic(root, **settings):
+            return root, cache
         local = Path(str(cfg.paths.data_dir)).expanduser() / synthetic_folder(settings["offbeats"])
         if not (local / "motions").is_dir() or outdated_synthetic(local, **settings):
             log.info("regenerating the checkpoint's synthetic dataset in %s", local)
             generate_synthetic_aistpp(local, **settings)
         return local, cache
-    if root and (Path(str(root)).expanduser() / "motions").is_dir():
-        return Path(str(root)).expanduser(), cache
+    if stored:
+        return root, cache
     raise ConfigError(
         f"the dataset the checkpoint was trained on ({root or 'not recorded'}) is not here; give "
         "data.root=<AIST++-layout folder>"
