@@ -19,9 +19,9 @@ class GuidanceSettings:
     """Classifier-free guidance weights; see :class:`~dgsdp.sampling.Guidance`."""
 
     # The weight on the music: 1 = plain conditional sampling; above 1 the dance follows the music more strongly, at
-    # the risk of exaggerated motion where the song is unlike the training music. 2.5 was chosen on 32 real songs
-    # (docs/benchmarks.md#real-songs); the papers used 2 (sampling=edge, and the evaluation protocols' own weights).
-    music: float = 2.5
+    # the risk of exaggerated motion where the song is unlike the training music. 2, the papers' weight, chosen on
+    # the quick start's model over 34 + 34 real songs (docs/benchmarks.md, "The model's own timing"; 2.5 before).
+    music: float = 2.0
     style: float = 1.0  # only used by models trained with style dropout (diffusion.style_drop_prob > 0)
     longform_ramp_fraction: float = 0.5  # dances longer than one window: weights rise from 0 over this fraction
     edit_cap_below_t: int = 100  # with an editing mask, weights are capped at 1 below this diffusion step (EDGE)
