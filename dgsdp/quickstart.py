@@ -45,10 +45,11 @@ TRAIN_STEPS = 1000
 #   them): real songs have onsets halfway between the beats, and a model trained on songs without them paused on
 #   those too;
 # - no dropout (model.dropout=0, row 9; row 5 is the recipe with it): the raw dances' timing target (90% of a
-#   real-song set above the half-beat-shifted copy in both BAS variants) held in 3 of 6 seed-and-set runs against 1
-#   of 4 for row 5, seed 0 on both sets, and 1000 steps train about 30% faster on 2 CPU cores. Its dances move
-#   faster, so the default music guidance is the papers' 2 (2.5 before). Its style accuracy is lower (Table I
-#   protocol at w = 2: 0.450 against 0.484 for row 5, seed 0).
+#   real-song set above the half-beat-shifted copy in both BAS variants) held in 4 of 6 seed-and-set runs at
+#   guidance 2.5 (3 of 6 at 2) against 1 of 4 for row 5 at 2.5, seed 0 on both sets at both weights, and 1000
+#   steps train about 30% faster on 2 CPU cores. Its dances move faster, so the default music guidance is the
+#   papers' 2 (2.5 before). Its style accuracy is lower (Table I protocol at w = 2: 0.450 against 0.484 for row 5,
+#   seed 0).
 QUICKSTART_EXPERIMENT = "quickstart_row9"
 QUICKSTART_TRAINING = (f"trainer.max_steps={TRAIN_STEPS}", f"experiment={QUICKSTART_EXPERIMENT}")
 NEXT_HINT = (
