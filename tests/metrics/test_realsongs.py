@@ -257,6 +257,16 @@ def test_style_summary_counts_each_targets_misses_per_style():
         "style=BR dances=1 pass=1 errors=0 p999_missed=0 penetration_missed=0 floating_missed=0 seam_missed=0 "
         "speed_missed=0 bas_missed=0 bas_edge_missed=0 worst_p999=3.000",
     ]
+    # with the training data's figures per genre, a genre's line compares its dances with that genre's own dances
+    for r in results[:2]:  # JS's two finished dances (mean speed 0.4) and their raw dances (0.5 and 0.3)
+        r.raw = rs.SongFigures(10.0, 1.0, 0.0, 0.0, 1.0, 0.5 if r is results[0] else 0.3, 0.3, 0.2, 0.3, 0.2, 8, 20,
+                               3, [0.4] * 8)  # fmt: skip
+    lines = rs.style_summary_lines(results, {"JS": {"mean_speed_m_s": 0.8, "p999_speed_m_s": 8.09, "seconds": 9.0}})
+    assert lines[0].endswith(
+        " worst_p999=9.500 genre_train_speed=0.800 genre_train_p999=8.09 speed_ratio_genre=0.50 "
+        "raw_speed_ratio_genre=0.50"
+    )
+    assert "genre_train" not in lines[1]  # BR has no figures of its own here
 
 
 def click_song(path: Path, seconds: float, rate_hz: int = 22050, amplitude: float = 0.3) -> None:
@@ -376,6 +386,17 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     assert reference["n_dances"] == 2 and reference["seconds"] == pytest.approx(16.0)  # two 8 s dances
     assert reference["seam_ratio"] > 0  # 240 frames: boundaries at 75 and 150 laid on them
     assert long["speed_ratio"] == pytest.approx(long["figures"]["mean_speed_m_s"] / data["train_speed_m_s"])
+    # per genre: every training dance counted once, and the genres' speeds, weighted by their steps (frames less
+    # one per dance), average to the speed of all of them
+    by_genre = reference["by_genre"]
+    assert sum(g["seconds"] for g in by_genre.values()) == pytest.approx(16.0)
+    from dgsdp.data.aistpp import parse_name, read_split
+
+    genres = [parse_name(name).genre for name in read_split(tmp_path / "data", "train")]
+    assert set(by_genre) == set(genres)
+    steps = {genre: g["seconds"] * 30 - genres.count(genre) for genre, g in by_genre.items()}
+    weighted = sum(by_genre[g]["mean_speed_m_s"] * n for g, n in steps.items()) / sum(steps.values())
+    assert weighted == pytest.approx(data["train_speed_m_s"], rel=1e-9)
 
     # --all-styles: the one song in each of the checkpoint's genres, a row, a dance file and a summary line each
     one = tmp_path / "one"
@@ -398,6 +419,13 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     assert printed[-1].startswith("raw: ")
     for song, line in zip(data["songs"], printed[summary + 1 : -1]):
         assert f" pass={int(song['passed'])} " in line
+        genre = reference["by_genre"].get(song["style"])  # a genre with training dances: its own speed beside
+        if genre is not None:
+            ratio = song["figures"]["mean_speed_m_s"] / genre["mean_speed_m_s"]
+            assert f" genre_train_speed={genre['mean_speed_m_s']:.3f} " in line
+            assert f" speed_ratio_genre={ratio:.2f} " in line
+    assert data["style_summaries"] == printed[summary + 1 : -1]
+    assert any("genre_train_speed=" in line for line in data["style_summaries"])
 
 
 @pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="the song set is built with ffmpeg")

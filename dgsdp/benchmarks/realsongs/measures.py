@@ -271,8 +271,10 @@ def training_figures(
     the project's loader), the reference for the dances: mean joint speed over every frame of every dance, p99.9
     joint speed, deepest penetration, floating fraction over every frame, and the mean seam ratio of the dances
     with long-form window boundaries laid on them (about 1.0: real dances have no seams), and the mean speed by beat
-    phase (:func:`speed_by_phase`, every step of every dance pooled, against its song's beats). Cached in
-    ``cache_dir/realsongs``. Returns (figures, where they came from), or (None, why) without the data."""
+    phase (:func:`speed_by_phase`, every step of every dance pooled, against its song's beats); and per genre
+    (``by_genre``: its dances' mean and p99.9 joint speed and seconds), the reference of a dance asked for in that
+    genre. Cached in ``cache_dir/realsongs``. Returns (figures, where they came from), or (None, why) without the
+    data."""
     from dgsdp.data.aistpp import read_split
     from dgsdp.data.datamodule import load_sequences
     from dgsdp.utils.io import atomic_write_text, stable_hash
@@ -292,7 +294,14 @@ def training_figures(
     for name in names:
         pkl = root / "motions" / f"{name}.pkl"
         stamps.append([name, [pkl.stat().st_size, pkl.stat().st_mtime_ns] if pkl.is_file() else None])
-    settings = {"floor_m": float(floor_m), "window": int(window), "stride": int(stride), "fps": fps, "phase": 1}
+    settings = {
+        "floor_m": float(floor_m),
+        "window": int(window),
+        "stride": int(stride),
+        "fps": fps,
+        "phase": 1,
+        "genres": 1,
+    }
     key = stable_hash({"root": str(root.resolve()), "split": split, "files": stamps, **settings})
     cache_file = Path(cache_dir) / "realsongs" / f"train-figures-{key}.json"
     if cache_file.is_file():
@@ -311,6 +320,8 @@ def training_figures(
     except DgsdpError as e:
         return None, f"training data unreadable: {e}"
     speeds, floating, seams, penetration, frames = [], 0.0, [], 0.0, 0
+    genre_speeds: dict[str, list[np.ndarray]] = {}  # each genre's dances: every joint speed, and their frames
+    genre_frames: dict[str, int] = {}
     step_speeds, step_bins = [], []  # every step of every dance with a song, for the speed by beat phase
     cache = FeatureCache(cache_dir)
     for seq in sequences:
@@ -318,6 +329,8 @@ def training_figures(
             continue
         joints = pose_to_joints(torch.from_numpy(np.asarray(seq.motion, dtype=np.float64))).numpy()
         speeds.append(joint_speeds(joints, fps).reshape(-1))
+        genre_speeds.setdefault(seq.genre, []).append(speeds[-1])
+        genre_frames[seq.genre] = genre_frames.get(seq.genre, 0) + len(joints)
         floating += floating_fraction(joints, floor_m) * len(joints)
         frames += len(joints)
         penetration = max(penetration, penetration_cm(joints, floor_m))
@@ -342,6 +355,14 @@ def training_figures(
         else None,
         "n_dances": len(speeds),
         "seconds": frames / fps,
+        "by_genre": {
+            genre: {
+                "mean_speed_m_s": float(np.concatenate(v).mean()),
+                "p999_speed_m_s": float(np.percentile(np.concatenate(v), 99.9)),
+                "seconds": genre_frames[genre] / fps,
+            }
+            for genre, v in sorted(genre_speeds.items())
+        },
     }
     record = {"figures": figures, "root": str(root), "split": split, **settings}
     atomic_write_text(cache_file, json.dumps(_no_nan(record)))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -205,17 +205,35 @@ def _phase_text(profile: Sequence[float] | None) -> str:
     return "[" + ",".join(_fmt(None if v is None else float(v), ".2f") for v in profile) + "]"
 
 
-def style_summary_lines(results: Sequence[SongResult]) -> list[str]:
-    """One line per style: how many of its dances pass, each target's misses, and its worst p99.9 speed."""
+def style_summary_lines(
+    results: Sequence[SongResult], by_genre: Mapping[str, Mapping[str, float]] | None = None
+) -> list[str]:
+    """One line per style: how many of its dances pass, each target's misses, and its worst p99.9 speed. With the
+    training data's figures per genre (``by_genre``, from :func:`training_figures`), a genre's line also compares
+    its dances with that genre's own training dances: their mean and p99.9 joint speed (``genre_train_speed``,
+    ``genre_train_p999``) and the mean speed ratio of the finished and the raw dances to it (``speed_ratio_genre``,
+    ``raw_speed_ratio_genre``). The targets stay those of every dance (the speed against all the training data);
+    these figures say whether a genre's dances move as that genre does."""
     lines = []
     for style in dict.fromkeys(r.style for r in results):
         mine = [r for r in results if r.style == style]
         done = [r for r in mine if r.error is None]
         missed = {name: sum(not r.checks.get(name, True) for r in done) for name in CHECK_NAMES}
         p999 = [r.figures.p999_speed_m_s for r in done]
-        lines.append(
+        line = (
             f"style={style} dances={len(mine)} pass={sum(r.passed for r in mine)} errors={len(mine) - len(done)} "
             + " ".join(f"{name}_missed={n}" for name, n in missed.items())
             + f" worst_p999={_fmt(max(p999) if p999 else math.nan, '.3f')}"
         )
+        genre = (by_genre or {}).get(str(style))
+        if genre is not None:
+            speed = float(genre["mean_speed_m_s"])
+            final = [_ratio(r.figures.mean_speed_m_s, speed) for r in done]
+            raw = [_ratio(r.raw.mean_speed_m_s, speed) for r in done]
+            line += (
+                f" genre_train_speed={speed:.3f} genre_train_p999={float(genre['p999_speed_m_s']):.2f}"
+                f" speed_ratio_genre={_fmt(float(np.mean(final)) if final else math.nan, '.2f')}"
+                f" raw_speed_ratio_genre={_fmt(float(np.mean(raw)) if raw else math.nan, '.2f')}"
+            )
+        lines.append(line)
     return lines

@@ -159,8 +159,10 @@ def run_benchmark(
         results.append(result)
         print(format_row(result, train_speed, width), file=out, flush=True)
     print(summary_line(results, train_speed), file=out, flush=True)
-    if all_styles:
-        print("\n".join(style_summary_lines(results)), file=out, flush=True)
+    by_genre = None if reference is None else reference.get("by_genre")
+    style_lines = style_summary_lines(results, by_genre) if all_styles else []
+    if style_lines:
+        print("\n".join(style_lines), file=out, flush=True)
     raw_line, _ = raw_summary(results, train_speed, None if reference is None else reference.get("speed_by_phase"))
     print(raw_line, file=out, flush=True)
     if json_path is not None:
@@ -208,6 +210,7 @@ def run_benchmark(
                 for r in results
             ],
             "summary": summary_line(results, train_speed),
+            "style_summaries": style_lines,
             "raw_summary": raw_line,
         }
         atomic_write_text(json_path, json.dumps(_no_nan(payload), indent=2, allow_nan=False) + "\n")
