@@ -319,3 +319,30 @@ def test_training_refuses_per_window_features():
 
     with pytest.raises(CheckpointError.__mro__[1], match="audio.per_window=true is EDGE's generation procedure"):
         check_config(compose_config("train", ["debug=tiny", "audio.per_window=true"]))
+
+
+def test_edge_code_names_a_missing_dependency_of_edges_own(tmp_path):
+    import sys
+
+    from dgsdp.errors import ConfigError
+    from dgsdp.interop.edge.verify import edge_code
+
+    checkout = tmp_path / "EDGE"
+    (checkout / "model").mkdir(parents=True)
+    (checkout / "model" / "model.py").write_text("import not_installed_edge_dependency\n")
+    (checkout / "model" / "diffusion.py").write_text("")
+    path_before = list(sys.path)
+    with pytest.raises(ConfigError, match=r"needs the module 'not_installed_edge_dependency'.*pip install "
+                       r"not_installed_edge_dependency"):  # fmt: skip
+        with edge_code(checkout):
+            pass
+    assert sys.path == path_before and "model" not in sys.modules  # nothing of the checkout is left imported
+    # a checkout without one of EDGE's classes, or without one of its files, is named as such
+    (checkout / "model" / "model.py").write_text("class DanceDecoder: ...\n")
+    with pytest.raises(ConfigError, match="not a checkout of EDGE's code as published.*GaussianDiffusion"):
+        with edge_code(checkout):
+            pass
+    (checkout / "model" / "diffusion.py").write_text("class GaussianDiffusion: ...\n")
+    with pytest.raises(ConfigError, match="not a complete checkout of EDGE.*dataset"):
+        with edge_code(checkout):
+            pass

@@ -86,14 +86,24 @@ def edge_code(edge_src: str | Path) -> Iterator[tuple[dict[str, Any], list[str]]
             del sys.modules[key]
     sys.path.insert(0, str(root))
     try:
-        classes = {
-            "DanceDecoder": importlib.import_module("model.model").DanceDecoder,
-            "GaussianDiffusion": importlib.import_module("model.diffusion").GaussianDiffusion,
-            "Normalizer": importlib.import_module("dataset.preprocess").Normalizer,
-            "MinMaxScaler": importlib.import_module("dataset.scaler").MinMaxScaler,
-            "SMPLSkeleton": importlib.import_module("vis").SMPLSkeleton,  # the FK of its training loss
-            "Adan": importlib.import_module("model.adan").Adan,  # its optimiser
-        }
+        try:
+            classes = {
+                "DanceDecoder": importlib.import_module("model.model").DanceDecoder,
+                "GaussianDiffusion": importlib.import_module("model.diffusion").GaussianDiffusion,
+                "Normalizer": importlib.import_module("dataset.preprocess").Normalizer,
+                "MinMaxScaler": importlib.import_module("dataset.scaler").MinMaxScaler,
+                "SMPLSkeleton": importlib.import_module("vis").SMPLSkeleton,  # the FK of its training loss
+                "Adan": importlib.import_module("model.adan").Adan,  # its optimiser
+            }
+        except ModuleNotFoundError as e:  # one of EDGE's own dependencies (einops, ...), not dgsdp's
+            if e.name is None or e.name.split(".")[0] in ("model", "dataset", "vis"):
+                raise ConfigError(f"{root} is not a complete checkout of EDGE: {e}") from e
+            raise ConfigError(
+                f"EDGE's code in {root} needs the module {e.name!r}, which is not installed: it is one of EDGE's own "
+                f"dependencies, not dgsdp's; install it (pip install {e.name.split('.')[0]}) and run again"
+            ) from e
+        except AttributeError as e:  # a file of the checkout without the class: another code than EDGE's
+            raise ConfigError(f"{root} is not a checkout of EDGE's code as published (Stanford-TML/EDGE): {e}") from e
         yield classes, stand_ins
     finally:
         sys.path[:] = saved_path
