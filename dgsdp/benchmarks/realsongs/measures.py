@@ -294,14 +294,8 @@ def training_figures(
     for name in names:
         pkl = root / "motions" / f"{name}.pkl"
         stamps.append([name, [pkl.stat().st_size, pkl.stat().st_mtime_ns] if pkl.is_file() else None])
-    settings = {
-        "floor_m": float(floor_m),
-        "window": int(window),
-        "stride": int(stride),
-        "fps": fps,
-        "phase": 1,
-        "genres": 1,
-    }
+    # "version" of what is measured (2: the genres' figures added): a cache of an older version is recomputed
+    settings = {"floor_m": float(floor_m), "window": int(window), "stride": int(stride), "fps": fps, "version": 2}
     key = stable_hash({"root": str(root.resolve()), "split": split, "files": stamps, **settings})
     cache_file = Path(cache_dir) / "realsongs" / f"train-figures-{key}.json"
     if cache_file.is_file():

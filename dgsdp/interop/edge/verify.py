@@ -36,6 +36,7 @@ from dgsdp.interop.edge.weights import EDGE_HEADS, edge_architecture
 TOLERANCE = 1e-4
 # imported by EDGE's model/diffusion.py, dataset/quaternion.py and vis.py for rendering only
 RENDER_ONLY_MODULES = ("p_tqdm", "pytorch3d", "pytorch3d.transforms")
+EDGE_PACKAGES = ("model", "dataset", "vis")  # EDGE's top-level names, imported from its checkout
 
 
 @dataclass
@@ -62,6 +63,30 @@ class _StandIn(types.ModuleType):
         return missing
 
 
+def _import_edge_classes(root: Path) -> dict[str, Any]:
+    """EDGE's classes, imported from the checkout ``root`` (already first on sys.path); one clear error when a file,
+    a class or one of EDGE's own dependencies is missing."""
+    try:
+        return {
+            "DanceDecoder": importlib.import_module("model.model").DanceDecoder,
+            "GaussianDiffusion": importlib.import_module("model.diffusion").GaussianDiffusion,
+            "Normalizer": importlib.import_module("dataset.preprocess").Normalizer,
+            "MinMaxScaler": importlib.import_module("dataset.scaler").MinMaxScaler,
+            "SMPLSkeleton": importlib.import_module("vis").SMPLSkeleton,  # the FK of its training loss
+            "Adan": importlib.import_module("model.adan").Adan,  # its optimiser
+        }
+    except ModuleNotFoundError as e:  # one of EDGE's own dependencies (einops, ...), not dgsdp's
+        top = (e.name or "").split(".")[0]
+        if top in ("", *EDGE_PACKAGES):
+            raise ConfigError(f"{root} is not a complete checkout of EDGE: {e}") from e
+        raise ConfigError(
+            f"EDGE's code in {root} needs the module {e.name!r}, which is not installed: it is one of EDGE's own "
+            f"dependencies, not dgsdp's; install it (pip install {top}) and run again"
+        ) from e
+    except AttributeError as e:  # a file of the checkout without the class: another code than EDGE's
+        raise ConfigError(f"{root} is not a checkout of EDGE's code as published (Stanford-TML/EDGE): {e}") from e
+
+
 @contextmanager
 def edge_code(edge_src: str | Path) -> Iterator[tuple[dict[str, Any], list[str]]]:
     """EDGE's classes imported from ``edge_src`` (DanceDecoder, GaussianDiffusion, Normalizer, MinMaxScaler,
@@ -81,29 +106,12 @@ def edge_code(edge_src: str | Path) -> Iterator[tuple[dict[str, Any], list[str]]
         except ImportError:
             sys.modules[name] = _StandIn(name)
             stand_ins.append(name)
-    for name in ("model", "dataset", "vis"):  # EDGE's top-level names: never someone else's module of that name
+    for name in EDGE_PACKAGES:  # never someone else's module of that name
         for key in [k for k in sys.modules if k == name or k.startswith(name + ".")]:
             del sys.modules[key]
     sys.path.insert(0, str(root))
     try:
-        try:
-            classes = {
-                "DanceDecoder": importlib.import_module("model.model").DanceDecoder,
-                "GaussianDiffusion": importlib.import_module("model.diffusion").GaussianDiffusion,
-                "Normalizer": importlib.import_module("dataset.preprocess").Normalizer,
-                "MinMaxScaler": importlib.import_module("dataset.scaler").MinMaxScaler,
-                "SMPLSkeleton": importlib.import_module("vis").SMPLSkeleton,  # the FK of its training loss
-                "Adan": importlib.import_module("model.adan").Adan,  # its optimiser
-            }
-        except ModuleNotFoundError as e:  # one of EDGE's own dependencies (einops, ...), not dgsdp's
-            if e.name is None or e.name.split(".")[0] in ("model", "dataset", "vis"):
-                raise ConfigError(f"{root} is not a complete checkout of EDGE: {e}") from e
-            raise ConfigError(
-                f"EDGE's code in {root} needs the module {e.name!r}, which is not installed: it is one of EDGE's own "
-                f"dependencies, not dgsdp's; install it (pip install {e.name.split('.')[0]}) and run again"
-            ) from e
-        except AttributeError as e:  # a file of the checkout without the class: another code than EDGE's
-            raise ConfigError(f"{root} is not a checkout of EDGE's code as published (Stanford-TML/EDGE): {e}") from e
+        classes = _import_edge_classes(root)
         yield classes, stand_ins
     finally:
         sys.path[:] = saved_path
