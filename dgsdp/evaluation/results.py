@@ -70,7 +70,11 @@ def sampling_summary(sampling: Mapping[str, Any]) -> str:
     parts.append(f"long-form {sampling.get('longform', 'fuse')}")
     clip = sampling.get("clip_x0")
     parts.append("x0 clip of the run" if clip is None else f"x0 clip {clip:g}")
-    preset = " (the papers' sampling, sampling=edge)" if sampling.get("longform") == "edge" and method == "ddim" else ""
+    projected = sampling.get("project_rotations", "none")  # results written before the setting did not project
+    if projected != "none":
+        parts.append(f"{projected} rotations projected")
+    papers = sampling.get("longform") == "edge" and method == "ddim" and projected == "none"
+    preset = " (the papers' sampling, sampling=edge)" if papers else ""
     return ", ".join(parts) + preset
 
 

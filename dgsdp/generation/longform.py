@@ -24,8 +24,14 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from dgsdp.motion import MinMaxNormalizer, matrix_slerp, matrix_to_6d, sixd_to_matrix
-from dgsdp.motion.representation import CONTACT_CHANNELS, POSE_DIM, ROOT_CHANNELS, ROTATION_CHANNELS
+from dgsdp.motion import MinMaxNormalizer, matrix_slerp, matrix_to_6d, project_rotations, sixd_to_matrix
+from dgsdp.motion.representation import (
+    CONTACT_CHANNELS,
+    POSE_DIM,
+    ROOT_CHANNELS,
+    ROTATION_CHANNELS,
+    ROTATION_PROJECTIONS,
+)
 from dgsdp.motion.skeleton import NUM_JOINTS
 from dgsdp.sampling import Condition, Guidance, Noise, Sampler
 
@@ -263,6 +269,7 @@ def sample_items(
     chunk_size: int = 0,
     longform: str = "fuse",
     clip_x0: float | None = None,
+    project: str = "none",
     device: torch.device | str = "cpu",
     progress: bool = False,
     windows: bool = False,
@@ -274,11 +281,14 @@ def sample_items(
     the same dance agree on their overlap after every step (``longform``: ``fuse`` or EDGE's ``edge``, see the
     module docstring), and the windows are stitched. The given channels of an edited dance equal its ``known``
     motion. A request with a seed draws its noise from it alone. ``clip_x0`` replaces the run's x0 bound.
-    ``windows=True`` returns each item's normalised windows (S, n_windows, window, 151) instead, as sampled."""
+    ``project`` (``root`` or ``all``; ``none`` = not) makes those 6D rotations of every x0 prediction valid rotations,
+    after the fusion (:func:`~dgsdp.motion.project_rotations`; ``sampling.project_rotations``). ``windows=True`` returns each item's normalised windows (S, n_windows, window, 151) instead, as sampled."""
     if not items:
         return []
     if longform not in ("fuse", "edge"):
         raise ValueError(f"unknown long-form mode {longform!r}; use 'fuse' or 'edge'")
+    if project not in ("none", *ROTATION_PROJECTIONS):
+        raise ValueError(f"unknown rotation projection {project!r}; use 'none', 'root' or 'all'")
     device = torch.device(device)
     if len({it.music is None for it in items}) > 1 or len({it.style is None for it in items}) > 1:
         raise ValueError("the dances of one batch must all have music (or none) and all have a style (or none)")
@@ -333,8 +343,17 @@ def sample_items(
     def share_state(x: torch.Tensor, t_next: int) -> torch.Tensor:
         return per_dance(share_overlaps, x)
 
-    def fuse_x0(x0: torch.Tensor) -> torch.Tensor:
-        return per_dance(fuse_overlaps, x0)
+    long = any(layout.n_windows > 1 for layout in layouts)
+    edge = longform == "edge"
+    fuse = long and not edge
+
+    def shape_x0(x0: torch.Tensor) -> torch.Tensor:
+        """Fuse the windows' predictions and/or project their rotations onto valid ones."""
+        if fuse:
+            x0 = per_dance(fuse_overlaps, x0)
+        if project == "none":
+            return x0
+        return normalizer.normalize(project_rotations(normalizer.unnormalize(x0), project))
 
     calls = [0]
 
@@ -343,8 +362,6 @@ def sample_items(
         calls[0] += 1
         return x if calls[0] == 1 or t_next < 0 else per_dance(share_overlaps, x)
 
-    long = any(layout.n_windows > 1 for layout in layouts)
-    edge = longform == "edge"
     generators = [it.generator(device) for it in items]
     if all(g is None for g in generators):
         noise = Noise(None)
@@ -364,7 +381,7 @@ def sample_items(
         mask=torch.cat(masks) if any_mask else None,
         known=torch.cat(knowns) if any_mask else None,
         step_callback=(overwrite_after_step if edge else share_state) if long else None,
-        x0_callback=fuse_x0 if long and not edge else None,
+        x0_callback=shape_x0 if fuse or project != "none" else None,
         generator=noise,
         device=device,
         progress=progress,

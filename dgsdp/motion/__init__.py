@@ -19,6 +19,7 @@ from dgsdp.motion.representation import (
     foot_contacts,
     pack_pose,
     pose_to_joints,
+    project_rotations,
     smpl_to_pose,
     unpack_pose,
 )
@@ -51,6 +52,7 @@ __all__ = [
     "measure_floor_height", "axis_angle_to_quaternion", "channels_for_joints",
     "foot_contacts", "forward_kinematics", "joint_index", "matrix_slerp", "matrix_to_6d", "matrix_to_axis_angle",
     "matrix_to_quaternion", "pack_pose", "points_y_up_to_z_up", "points_z_up_to_y_up", "pose_to_joints",
+    "project_rotations",
     "quaternion_slerp", "quaternion_to_axis_angle", "quaternion_to_matrix", "rest_offsets",
     "root_rotation_y_up_to_z_up", "root_rotation_z_up_to_y_up", "sixd_to_matrix", "smpl_to_pose", "unpack_pose",
 ]  # fmt: skip

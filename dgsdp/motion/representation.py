@@ -22,6 +22,7 @@ CONTACT_CHANNELS = slice(0, 4)
 ROOT_CHANNELS = slice(4, 7)
 ROTATION_CHANNELS = slice(7, 151)
 CONTACT_SPEED_THRESHOLD_M_PER_FRAME = 0.01
+ROTATION_PROJECTIONS = ("root", "all")  # the joints project_rotations can make valid
 
 
 @dataclass
@@ -49,6 +50,23 @@ def unpack_pose(x: torch.Tensor) -> PoseParts:
         raise ValueError(f"pose vectors must have {POSE_DIM} channels, got shape {tuple(x.shape)}")
     sixd = x[..., ROTATION_CHANNELS].reshape(*x.shape[:-1], NUM_JOINTS, 6)
     return PoseParts(x[..., CONTACT_CHANNELS], x[..., ROOT_CHANNELS], sixd_to_matrix(sixd))
+
+
+def project_rotations(x: torch.Tensor, which: str = "all") -> torch.Tensor:
+    """Unnormalised pose vectors (..., T, 151) with the 6D rotations of ``which`` joints (``all``, or ``root``: the
+    body's orientation only) replaced by those of the rotations they decode to (Gram-Schmidt): two orthonormal
+    columns. Valid rotations are unchanged (to float precision); a shrunken 6D vector, such as the mean of a turn
+    left and a turn right, becomes a unit one. Other channels are unchanged. Returns a new tensor."""
+    if x.shape[-1] != POSE_DIM:
+        raise ValueError(f"pose vectors must have {POSE_DIM} channels, got shape {tuple(x.shape)}")
+    if which not in ROTATION_PROJECTIONS:
+        raise ValueError(f"which={which!r}: project the rotations of 'all' joints or of the 'root' only")
+    n = NUM_JOINTS if which == "all" else 1
+    channels = slice(ROTATION_CHANNELS.start, ROTATION_CHANNELS.start + 6 * n)
+    sixd = x[..., channels].reshape(*x.shape[:-1], n, 6)
+    out = x.clone()
+    out[..., channels] = matrix_to_6d(sixd_to_matrix(sixd)).reshape(*x.shape[:-1], 6 * n)
+    return out
 
 
 def pose_to_joints(x: torch.Tensor) -> torch.Tensor:

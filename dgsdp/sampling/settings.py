@@ -8,10 +8,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from dgsdp.errors import ConfigError
+from dgsdp.motion.representation import ROTATION_PROJECTIONS
 from dgsdp.sampling.sampler import METHODS, Guidance
 
 # How the windows of a long dance are kept in agreement (dgsdp.generation.longform).
 LONGFORM_MODES = ("fuse", "edge")
+# Which 6D rotations of every x0 prediction are made valid rotations (dgsdp.motion.project_rotations).
+ROTATION_PROJECTION_CHOICES = ("none", *ROTATION_PROJECTIONS)
 
 
 @dataclass
@@ -35,7 +38,10 @@ class SamplingSettings:
     far apart. longform: how the windows of a long dance agree (``fuse``: shared initial noise and fused x0
     predictions at every step; ``edge``: EDGE's overwrite of each window's first half by its neighbour after every
     step but the last; see :mod:`dgsdp.generation.longform`). clip_x0: the bound of x0 predictions in normalised
-    units (None: the run's ``diffusion.clip_x0``; the papers: 1). chunk_size > 0: at most this many windows per
+    units (None: the run's ``diffusion.clip_x0``; the papers: 1). project_rotations: ``root`` (the body's
+    orientation) or ``all`` joints' 6D rotations of every x0 prediction are made valid rotations (two orthonormal
+    columns, :func:`~dgsdp.motion.project_rotations`) before the solver uses them; ``none``: as the network gives
+    them (the papers). chunk_size > 0: at most this many windows per
     denoiser call (memory). batch_size: independent dances sampled together. bf16: bf16 autocast (on CUDA, or on a
     CPU with native bf16 instructions, AVX512-BF16 or AMX, where it is faster; docs/sampling.md)."""
 
@@ -49,6 +55,11 @@ class SamplingSettings:
     stride_frames: int = 75
     longform: str = "fuse"
     clip_x0: float | None = None
+    # Where a model is unsure which way the body turns, its x0 prediction is the mean of the turns: a short 6D
+    # vector, which decodes to the body snapping round within a few frames. Projected at every step, the sampler
+    # commits to one turn. root, not all: all joints also slow the dances and cost the quick start's model some of
+    # its raw timing (docs/sampling.md, "Rotations kept valid while sampling").
+    project_rotations: str = "root"
     chunk_size: int = 0
     batch_size: int = 64
     bf16: bool = False
@@ -70,6 +81,11 @@ class SamplingSettings:
             raise ConfigError(f"sampling.window_frames must be at least 1 (or null), got {self.window_frames}")
         if self.longform not in LONGFORM_MODES:
             raise ConfigError(f"sampling.longform={self.longform!r} is not one of {', '.join(LONGFORM_MODES)}")
+        if self.project_rotations not in ROTATION_PROJECTION_CHOICES:
+            raise ConfigError(
+                f"sampling.project_rotations={self.project_rotations!r} is not one of "
+                f"{', '.join(ROTATION_PROJECTION_CHOICES)}"
+            )
         if self.clip_x0 is not None and not float(self.clip_x0) > 0:
             raise ConfigError(f"sampling.clip_x0 must be a positive bound or null (the run's own), got {self.clip_x0}")
         if int(self.chunk_size) < 0:

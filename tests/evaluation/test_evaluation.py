@@ -268,6 +268,10 @@ def test_protocols_and_sweeps_sample_as_the_papers_and_say_so(tmp_path):
     assert papers.guidance.music == 2.0
     fast = compose_config("evaluate", ["sampling=dpmpp_2m"], output_dir=tmp_path).sampling
     assert (fast.method, fast.steps, fast.longform, fast.clip_x0) == ("dpmpp_2m", 10, "fuse", None)
+    assert (papers.project_rotations, fast.project_rotations) == ("none", "root")
+    fast_line = results_markdown({"protocol": "table1", "rows": [], "metrics": [],
+                                  "settings": {"sampling": OmegaConf.to_container(fast)}})  # fmt: skip
+    assert "Sampling: dpmpp_2m, 10 steps, long-form fuse, x0 clip of the run, root rotations projected\n" in fast_line
     for sweep in sorted(SWEEPS_DIR.glob("table*.yaml")):
         assert OmegaConf.load(sweep).evaluate_overrides[0] == "sampling=edge", sweep.name
     results = {"protocol": "table1", "rows": [], "metrics": [],

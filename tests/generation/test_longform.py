@@ -8,7 +8,7 @@ from gen_helpers import AUDIO_DIM, random_motion
 
 from dgsdp.editing import build_mask
 from dgsdp.generation import WindowLayout, sample_long, share_overlaps, stitch_windows
-from dgsdp.generation.longform import fuse_overlaps, overlap_weights
+from dgsdp.generation.longform import DanceRequest, fuse_overlaps, overlap_weights, sample_items
 from dgsdp.motion import matrix_to_6d, pack_pose
 from dgsdp.sampling import Guidance
 
@@ -111,6 +111,35 @@ def test_per_frame_style_and_samples(tiny_model):
                       chunk_size=3, generator=torch.Generator().manual_seed(0))  # fmt: skip
     assert out.shape == (2, n, 151)
     assert (out[0] - out[1]).abs().max() > 1e-3
+
+
+def sixd_error(motion: torch.Tensor) -> torch.Tensor:
+    """Largest departure of each joint's 6D rotations in (..., 151) motions from two orthonormal columns, (24,)."""
+    six = motion[..., 7:].reshape(-1, 24, 6)
+    a, b = six[..., :3], six[..., 3:]
+    return torch.stack([(a.norm(dim=-1) - 1).abs(), (b.norm(dim=-1) - 1).abs(), (a * b).sum(-1).abs()]).amax((0, 1))
+
+
+@pytest.mark.parametrize("method", ["ddim", "dpmpp_2m"])
+@pytest.mark.parametrize("n_frames", [150, 300])  # one window; long-form (fused)
+def test_projected_sampling_gives_valid_rotations(tiny_model, method, n_frames):
+    """``project`` makes the 6D rotations of every x0 prediction orthonormal (the root's, or all joints'); the
+    random-init model's own are not, and the sampled windows are."""
+    music = torch.randn(n_frames, AUDIO_DIM)
+
+    def error(project: str) -> torch.Tensor:
+        (w,) = sample_items(
+            tiny_model.sampler(), tiny_model.normalizer, [DanceRequest(n_frames, music=music, seed=0)],
+            method=method, steps=4, project=project, windows=True,
+        )  # fmt: skip
+        return sixd_error(tiny_model.normalizer.unnormalize(w))
+
+    unprojected, root, every = error("none"), error("root"), error("all")
+    assert (unprojected > 0.1).all()
+    assert root[0] < 1e-4 and (root[1:] > 0.1).all()
+    assert (every < 1e-4).all()
+    with pytest.raises(ValueError, match="rotation projection"):
+        error("yes")
 
 
 TASK_OPTIONS = {

@@ -40,6 +40,8 @@ def test_the_edge_preset_is_edges_test_procedure():
     s = edge_settings()
     assert (s.method, s.steps, s.eta, s.guidance.music, s.clip_x0, s.longform) == ("ddim", 50, 1.0, 2.0, 1.0, "edge")
     assert (s.guidance.longform_ramp_fraction, s.stride_frames) == (0.5, 75)
+    assert s.project_rotations == "none"  # the network's 6D rotations as it gives them
+    assert SamplingSettings().project_rotations == "root"
 
 
 def edge_long_ddim(model: DanceDiffusion, cond: torch.Tensor, weight: float, steps: int = 50) -> torch.Tensor:

@@ -331,7 +331,8 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
         "model_beat_target=pass", "model_beat_target=FAIL"
     )  # fmt: skip
     assert any(line.startswith("zz-broken.wav") and "ERROR" in line for line in printed)
-    data = json.loads(report.read_text())
+    assert any("sampling dpmpp_2m-2 guidance music=2 project_rotations=root;" in line for line in printed)
+    assert data["sampling"]["steps"] == 2 and data["sampling"]["project_rotations"] == "root"
     by_name: dict[str, dict] = {}
     for song in data["songs"]:  # a song's first dance: in its own genre
         by_name.setdefault(song["name"], song)

@@ -18,6 +18,7 @@ from dgsdp.motion import (
     pack_pose,
     points_y_up_to_z_up,
     points_z_up_to_y_up,
+    project_rotations,
     quaternion_slerp,
     quaternion_to_matrix,
     rest_offsets,
@@ -136,6 +137,40 @@ def test_pose_vector_pack_unpack_round_trip():
     assert torch.allclose(parts.rotmats, rots, atol=1e-5)
     # joint j's 6D lives at channels 7+6j .. 12+6j
     assert torch.equal(x[:, 7 + 6 * 5 : 13 + 6 * 5], matrix_to_6d(rots[:, 5]))
+
+
+def test_project_rotations_keeps_valid_rotations_and_repairs_shrunken_ones():
+    rots = axis_angle_to_matrix(random_rotvecs(5, 24))
+    x = pack_pose(torch.rand(5, 4, dtype=torch.float64), torch.randn(5, 3, dtype=torch.float64), rots)
+    torch.testing.assert_close(project_rotations(x), x, atol=1e-12, rtol=0)
+    # the mean of a 60-degree turn left and one right about z (a model unsure which way the body turns): the 6D
+    # columns shrink to (cos 60deg, 0, 0) and (0, cos 60deg, 0), which decode to no turn
+    left, right = (
+        axis_angle_to_matrix(torch.tensor([0.0, 0.0, s * math.pi / 3], dtype=torch.float64)) for s in (1, -1)
+    )
+    y = x.clone()
+    y[0, 7:13] = (matrix_to_6d(left) + matrix_to_6d(right)) / 2
+    torch.testing.assert_close(y[0, 7:13], torch.tensor([0.5, 0, 0, 0, 0.5, 0], dtype=torch.float64))
+    out = project_rotations(y)
+    torch.testing.assert_close(out[0, 7:13], torch.tensor([1.0, 0, 0, 0, 1, 0], dtype=torch.float64))  # no turn
+    torch.testing.assert_close(out[1:], x[1:], atol=1e-12, rtol=0)
+    torch.testing.assert_close(out[:, :7], y[:, :7])  # contacts and root translation untouched
+    # any 6D vector: the output decodes to the same rotation, and its two columns are orthonormal
+    z = x.clone()
+    z[..., 7:] += 0.3 * torch.randn_like(z[..., 7:])
+    p = project_rotations(z)
+    torch.testing.assert_close(unpack_pose(p).rotmats, unpack_pose(z).rotmats, atol=1e-12, rtol=0)
+    six = p[..., 7:].reshape(5, 24, 6)
+    torch.testing.assert_close(six[..., :3].norm(dim=-1), torch.ones(5, 24, dtype=torch.float64))
+    torch.testing.assert_close(six[..., 3:].norm(dim=-1), torch.ones(5, 24, dtype=torch.float64))
+    torch.testing.assert_close((six[..., :3] * six[..., 3:]).sum(-1), torch.zeros(5, 24, dtype=torch.float64))
+    root = project_rotations(z, "root")  # the root's rotation only
+    torch.testing.assert_close(root[..., :13], p[..., :13])
+    torch.testing.assert_close(root[..., 13:], z[..., 13:])
+    with pytest.raises(ValueError, match="151 channels"):
+        project_rotations(torch.zeros(3, 150))
+    with pytest.raises(ValueError, match="'all' joints or of the 'root'"):
+        project_rotations(x, "hips")
 
 
 def test_smpl_to_pose_from_y_up_standing_body_is_upright_z_up():

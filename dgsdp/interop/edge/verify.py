@@ -235,7 +235,7 @@ def verify(
         (our_windows,) = sample_items(
             ours.sampler(), ours.normalizer, [request], window=window, stride=stride, method=settings.method,
             steps=settings.steps, eta=settings.eta, guidance=settings.guidance_for(long=True),
-            longform=settings.longform, clip_x0=settings.clip_x0, windows=True,
+            longform=settings.longform, clip_x0=settings.clip_x0, project=settings.project_rotations, windows=True,
         )  # fmt: skip
         our_windows = our_windows[0]
         details["sample_normalised"] = _max_diff(edge_windows, our_windows)
