@@ -25,15 +25,10 @@ import torch
 from torch import nn
 
 from dgsdp.motion import MinMaxNormalizer, matrix_slerp, matrix_to_6d, project_rotations, sixd_to_matrix
-from dgsdp.motion.representation import (
-    CONTACT_CHANNELS,
-    POSE_DIM,
-    ROOT_CHANNELS,
-    ROTATION_CHANNELS,
-    ROTATION_PROJECTIONS,
-)
+from dgsdp.motion.representation import CONTACT_CHANNELS, POSE_DIM, ROOT_CHANNELS, ROTATION_CHANNELS
 from dgsdp.motion.skeleton import NUM_JOINTS
 from dgsdp.sampling import Condition, Guidance, Noise, Sampler
+from dgsdp.sampling.settings import LONGFORM_MODES, ROTATION_PROJECTION_CHOICES
 
 
 @dataclass(frozen=True)
@@ -281,14 +276,17 @@ def sample_items(
     the same dance agree on their overlap after every step (``longform``: ``fuse`` or EDGE's ``edge``, see the
     module docstring), and the windows are stitched. The given channels of an edited dance equal its ``known``
     motion. A request with a seed draws its noise from it alone. ``clip_x0`` replaces the run's x0 bound.
-    ``project`` (``root`` or ``all``; ``none`` = not) makes those 6D rotations of every x0 prediction valid rotations,
-    after the fusion (:func:`~dgsdp.motion.project_rotations`; ``sampling.project_rotations``). ``windows=True`` returns each item's normalised windows (S, n_windows, window, 151) instead, as sampled."""
+    ``project`` (``root`` or ``all``; ``none`` = not) makes those 6D rotations of every x0 prediction valid
+    rotations, after the fusion (:func:`~dgsdp.motion.project_rotations`; ``sampling.project_rotations``).
+    ``windows=True`` returns each item's normalised windows (S, n_windows, window, 151) instead, as sampled."""
     if not items:
         return []
-    if longform not in ("fuse", "edge"):
-        raise ValueError(f"unknown long-form mode {longform!r}; use 'fuse' or 'edge'")
-    if project not in ("none", *ROTATION_PROJECTIONS):
-        raise ValueError(f"unknown rotation projection {project!r}; use 'none', 'root' or 'all'")
+    if longform not in LONGFORM_MODES:
+        raise ValueError(f"unknown long-form mode {longform!r}; use one of {', '.join(LONGFORM_MODES)}")
+    if project not in ROTATION_PROJECTION_CHOICES:
+        raise ValueError(
+            f"unknown rotation projection {project!r}; use one of {', '.join(ROTATION_PROJECTION_CHOICES)}"
+        )
     device = torch.device(device)
     if len({it.music is None for it in items}) > 1 or len({it.style is None for it in items}) > 1:
         raise ValueError("the dances of one batch must all have music (or none) and all have a style (or none)")

@@ -103,7 +103,8 @@ def run_benchmark(
         first.setdefault(pair[0], pair)
     print(
         f"checkpoint {checkpoint}; {len(songs)} songs in {folder}; sampling {sampling.method}-{sampling.steps} "
-        f"guidance music={sampling.guidance.music:g} project_rotations={sampling.project_rotations}; windows {window} frames, stride {stride}; floor z={floor:g} m; "
+        f"guidance music={sampling.guidance.music:g} project_rotations={sampling.project_rotations}; "
+        f"windows {window} frames, stride {stride}; floor z={floor:g} m; "
         f"training mean joint speed {_fmt(train_speed, '.3f')} m/s from {train_source}",
         file=out,
     )
