@@ -149,6 +149,27 @@ class AudioEncoder(abc.ABC):
             )
         return np.asarray(beats, dtype=np.int64)
 
+    # --- the beats the features give a model (tempo folding: dgsdp.audio.tempo) ---------------------------------
+    def feature_beats(self, features: np.ndarray) -> np.ndarray | None:
+        """The beat frames that features ``(T, output_dim)`` of this encoder give a model (the frames where the
+        beat phase columns are at phase 0: before the first and after the last tracked beat, where the phase runs on
+        at the nearest interval, the beats it implies), or None where they give none."""
+        if not self.beat_phase:
+            return None
+        sin, cos = np.asarray(features)[:, -BEAT_PHASE_DIM], np.asarray(features)[:, -BEAT_PHASE_DIM + 1]
+        return np.flatnonzero((np.abs(sin) < 1e-4) & (cos > 0.99))
+
+    def with_beats(self, features: np.ndarray, beats: np.ndarray) -> np.ndarray:
+        """A copy of features ``(T, output_dim)`` whose beat columns give ``beats`` instead."""
+        out = np.array(features, dtype=np.float32)
+        if self.beat_phase:
+            out[:, -BEAT_PHASE_DIM:] = beat_phase_columns(beats, out.shape[0])
+        return out
+
+    def beat_strength(self, features: np.ndarray) -> np.ndarray | None:
+        """Per frame, how strong the music is (the likelier downbeats), or None where the features do not say."""
+        return None
+
     @abc.abstractmethod
     def _encode(self, waveform: np.ndarray, music_id: str | None) -> np.ndarray:
         """Encode mono audio at ``self.sample_rate``: ``(samples,)`` -> ``(T, feature_dim)`` at ``fps``.

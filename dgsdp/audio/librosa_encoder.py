@@ -124,6 +124,19 @@ class LibrosaEncoder(AudioEncoder):
         """The beats of the beat column: the phase then agrees with the beats these features flag."""
         return np.flatnonzero(features[:, BEAT_COLUMN])
 
+    def feature_beats(self, features: np.ndarray) -> np.ndarray | None:
+        return np.flatnonzero(np.asarray(features)[:, BEAT_COLUMN])
+
+    def with_beats(self, features: np.ndarray, beats: np.ndarray) -> np.ndarray:
+        out = super().with_beats(features, beats)
+        beats = np.asarray(beats, dtype=np.int64)
+        out[:, BEAT_COLUMN] = 0.0
+        out[beats[(beats >= 0) & (beats < len(out))], BEAT_COLUMN] = 1.0
+        return out
+
+    def beat_strength(self, features: np.ndarray) -> np.ndarray | None:
+        return np.asarray(features)[:, ENVELOPE_COLUMN]  # the onset envelope
+
     def _encode(self, waveform: np.ndarray, music_id: str | None) -> np.ndarray:
         sr, hop = self.sample_rate, self.hop_length
         if self.loudness_lufs is not None:

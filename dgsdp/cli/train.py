@@ -164,6 +164,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     model.normalizer.load_state_dict(datamodule.normalizer.state_dict())
     if getattr(datamodule, "floor_height", None) is not None:  # measured on the training motions (docs/floor.md)
         model.set_floor_height(datamodule.floor_height)
+    model.set_tempo_range(getattr(datamodule, "tempo_range_bpm", None))  # the songs' tempi (sampling.tempo_fold)
     model.set_style_bank(bank)
     n_params = sum(p.numel() for p in model.denoiser.parameters())
     log.info("denoiser: %.2fM parameters", n_params / 1e6)

@@ -22,6 +22,7 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 from tqdm.auto import tqdm
 
 from dgsdp.audio import AudioEncoder, FeatureCache, load_audio
+from dgsdp.audio.tempo import training_tempo_range
 from dgsdp.data.aistpp import check_root, load_motion_pkl, music_path, parse_name, process_motion, read_split
 from dgsdp.errors import ConfigError, DataError, DgsdpError
 from dgsdp.motion import POSE_DIM, MinMaxNormalizer, measure_floor_height
@@ -405,6 +406,8 @@ class DanceDataModule(L.LightningDataModule):
         self.progress = progress
         self.normalizer = MinMaxNormalizer(POSE_DIM)
         self.floor_height: float | None = None  # z-up metres, measured on the training motions in setup()
+        # (lowest, highest) BPM of the training songs from their music ids, widened by tempo_augment; in setup()
+        self.tempo_range_bpm: tuple[float, float] | None = None
         self._sequences: dict[str, list[Sequence]] = {}
         self.datasets: dict[str, WindowDataset] = {}
 
@@ -468,6 +471,8 @@ class DanceDataModule(L.LightningDataModule):
         if self.floor_height is None:
             self.floor_height = measure_floor_height([s.motion for s in train])
             log.info("floor height of the training motions: %.3f m", self.floor_height)
+        if self.tempo_range_bpm is None:
+            self.tempo_range_bpm = training_tempo_range([s.music_id for s in train], self.tempo_augment)
         wanted = {
             "fit": ("train", "val"),
             "validate": ("val",),

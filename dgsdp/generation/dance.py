@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dgsdp.audio.tempo import TempoFold
 from dgsdp.motion import POSE_DIM, pose_to_joints, unpack_pose
 from dgsdp.motion.rotation import matrix_to_axis_angle
 from dgsdp.utils.io import atomic_path
@@ -22,7 +23,8 @@ class Dance:
     floor at ``floor_height`` (z-up metres). ``joints`` and :meth:`smpl` give them as joint positions and SMPL
     parameters; :meth:`save` writes the files generate.py writes. ``raw``: the model's own output before the
     finishing (beat sync and floor cleanup; the same as ``motion`` without them), and ``finishing``: one dict per
-    sample of what each finishing step changed (:meth:`DanceGenerator.finish`)."""
+    sample of what each finishing step changed (:meth:`DanceGenerator.finish`). ``tempo``: the song's tempo and how its
+    beats were given to the model (:class:`~dgsdp.audio.tempo.TempoFold`, ``sampling.tempo_fold``)."""
 
     motion: torch.Tensor
     fps: int
@@ -31,6 +33,7 @@ class Dance:
     style: str | None = None
     raw: torch.Tensor | None = None
     finishing: list[dict[str, float]] = field(default_factory=list)
+    tempo: TempoFold = field(default_factory=TempoFold)
 
     @property
     def joints(self) -> np.ndarray:

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from dgsdp.audio import AudioEncoder, FeatureCache, audio_duration_seconds
+from dgsdp.audio.tempo import TempoFold, beats_tempo_bpm, fold_beats, fold_octaves
 from dgsdp.editing import build_mask, check_task, load_motion_file, place_known
 from dgsdp.errors import AudioError, ConfigError
 from dgsdp.generation.beatsync import BeatSync, song_beats, sync_to_beats
@@ -115,6 +116,7 @@ class DanceGenerator:
         self.max_song_seconds = max_song_seconds
         self._audio: AudioEncoder | None = None
         self._embedder: Any = None
+        self._warned_tempo = False
 
     @classmethod
     def from_checkpoint(
@@ -181,11 +183,43 @@ class DanceGenerator:
                 raise short
             return (None if self.audio_encoder is None else self.music_windows(path, 0, n, sampling)), n
         feats = self.cache.features_for_file(self.audio_encoder, path, music_id=path.stem)
+        fold, beats = self._tempo_fold(feats, sampling)
+        if fold.octaves:
+            strength = self.audio_encoder.beat_strength(feats)
+            feats = self.audio_encoder.with_beats(feats, fold_beats(beats, fold.octaves, strength))
         if limit is not None:
             feats = feats[:limit]
         if len(feats) < 1:
             raise short
         return torch.from_numpy(np.array(feats)), len(feats)  # a copy: the cached array is read-only
+
+    def tempo_fold(self, path: Path, sampling: SamplingSettings | None = None) -> TempoFold:
+        """How :meth:`music_features` gives the model the beats of a song with ``sampling`` (its ``tempo_fold``): the
+        song's tempo and the octaves it is folded by toward the model's training tempi."""
+        if self.audio_encoder is None or self.audio_encoder.per_window:
+            return TempoFold()
+        feats = self.cache.features_for_file(self.audio_encoder, Path(path), music_id=Path(path).stem)
+        return self._tempo_fold(feats, sampling)[0]
+
+    def _tempo_fold(self, feats: np.ndarray, sampling: SamplingSettings | None) -> tuple[TempoFold, np.ndarray]:
+        sampling = sampling or SamplingSettings()
+        beats = self.audio_encoder.feature_beats(feats) if self.audio_encoder is not None else None
+        if beats is None:
+            return TempoFold(), np.zeros(0, np.int64)
+        bpm = beats_tempo_bpm(beats, self.fps)
+        if not sampling.tempo_fold:
+            return TempoFold(bpm), beats
+        tempo_range = tuple(sampling.tempo_range_bpm) if sampling.tempo_range_bpm else self.model.tempo_range
+        if tempo_range is None:
+            if not self._warned_tempo:
+                log.warning(
+                    "this checkpoint records no training tempi, so songs far faster or slower than its training music "
+                    "are not folded to half or double time: give sampling.tempo_range_bpm=[lowest,highest] (or "
+                    "retrain: train.py records them)"
+                )
+                self._warned_tempo = True
+            return TempoFold(bpm), beats
+        return TempoFold(bpm, fold_octaves(bpm, tempo_range), tempo_range), beats
 
     def music_windows(
         self,
@@ -363,7 +397,8 @@ class DanceGenerator:
         beats = song_beats(song, self.cache, self.audio_encoder) if retime else None
         stats: list[dict[str, float]] = []
         finished = self.finish(motions, beats, mask=mask, cleanup=cleanup, beat_sync=beat_sync, stats=stats)
-        return Dance(finished, self.fps, self.floor_height, song, plan.text, raw=motions, finishing=stats)
+        tempo = self.tempo_fold(song, sampling) if music is not None else TempoFold()
+        return Dance(finished, self.fps, self.floor_height, song, plan.text, raw=motions, finishing=stats, tempo=tempo)
 
     def finish(
         self,

@@ -3,6 +3,7 @@ benchmarks (one dataclass, also the config group's schema)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -41,7 +42,9 @@ class SamplingSettings:
     units (None: the run's ``diffusion.clip_x0``; the papers: 1). project_rotations: ``root`` (the body's
     orientation) or ``all`` joints' 6D rotations of every x0 prediction are made valid rotations (two orthonormal
     columns, :func:`~dgsdp.motion.project_rotations`) before the solver uses them; ``none``: as the network gives
-    them (the papers). chunk_size > 0: at most this many windows per
+    them (the papers). tempo_fold: the beats a model is given (a beat column, beat phase columns) are moved by
+    octaves toward the tempi of its training songs (``tempo_range_bpm``, else the checkpoint's record;
+    :func:`~dgsdp.audio.tempo.fold_octaves`); false: as the beat tracker found them (the papers). chunk_size > 0: at most this many windows per
     denoiser call (memory). batch_size: independent dances sampled together. bf16: bf16 autocast (on CUDA, or on a
     CPU with native bf16 instructions, AVX512-BF16 or AMX, where it is faster; docs/sampling.md)."""
 
@@ -60,6 +63,11 @@ class SamplingSettings:
     # commits to one turn. root, not all: all joints also slow the dances and cost the quick start's model some of
     # its raw timing (docs/sampling.md, "Rotations kept valid while sampling").
     project_rotations: str = "root"
+    # A song far faster (slower) than the model's training songs is given every other beat (a beat between beats):
+    # half (double) time, the nearest the model knows. tempo_range_bpm: the training tempi [lo, hi] (null: as the
+    # checkpoint recorded them). docs/sampling.md, "Songs faster than the training music".
+    tempo_fold: bool = True
+    tempo_range_bpm: list[float] | None = None
     chunk_size: int = 0
     batch_size: int = 64
     bf16: bool = False
@@ -86,6 +94,18 @@ class SamplingSettings:
                 f"sampling.project_rotations={self.project_rotations!r} is not one of "
                 f"{', '.join(ROTATION_PROJECTION_CHOICES)}"
             )
+        if self.tempo_range_bpm is not None:
+            values = list(self.tempo_range_bpm)
+            if (
+                len(values) != 2
+                or not all(isinstance(v, int | float) and math.isfinite(v) for v in values)
+                or not (0 < values[0] <= values[1])
+            ):
+                raise ConfigError(
+                    f"sampling.tempo_range_bpm must be [lowest, highest] BPM with 0 < lowest <= highest, or null (the "
+                    f"checkpoint's), got {self.tempo_range_bpm}"
+                )
+            self.tempo_range_bpm = [float(v) for v in values]
         if self.clip_x0 is not None and not float(self.clip_x0) > 0:
             raise ConfigError(f"sampling.clip_x0 must be a positive bound or null (the run's own), got {self.clip_x0}")
         if int(self.chunk_size) < 0:

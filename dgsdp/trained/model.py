@@ -57,6 +57,10 @@ class TrainedModel(nn.Module):
         # The training data's floor (z-up metres, dgsdp.motion.floor); checkpoints written before it existed load 0.0.
         self.register_buffer("floor_height", torch.tensor(0.0))
         self.register_load_state_dict_pre_hook(_default_floor_height)
+        # The tempi (lowest, highest BPM) of the training songs (dgsdp.audio.tempo.training_tempo_range), toward
+        # which generation folds a song's beats (sampling.tempo_fold); NaN: not recorded (older checkpoints).
+        self.register_buffer("tempo_range_bpm", torch.full((2,), math.nan))
+        self.register_load_state_dict_pre_hook(_default_tempo_range)
         self.register_buffer("style_vectors", torch.zeros(cond.style_bank_size, self.style_dim))
         self.register_buffer("style_genre_index", torch.zeros(cond.style_bank_size, dtype=torch.long))
         self.n_genres = cond.n_genres
@@ -77,6 +81,16 @@ class TrainedModel(nn.Module):
     def set_floor_height(self, metres: float) -> None:
         """Store the floor height of the training data (z-up metres, see dgsdp.motion.floor)."""
         self.floor_height.fill_(check_floor_height(metres, "the floor height"))
+
+    def set_tempo_range(self, bpm: tuple[float, float] | None) -> None:
+        """Store the training songs' tempo range (lowest, highest BPM); None: unknown."""
+        self.tempo_range_bpm.copy_(torch.tensor(check_tempo_range(bpm, "the tempo range"), dtype=torch.float32))
+
+    @property
+    def tempo_range(self) -> tuple[float, float] | None:
+        """The training songs' tempo range (lowest, highest BPM), or None where the checkpoint recorded none."""
+        lo, hi = (float(v) for v in self.tempo_range_bpm)
+        return None if math.isnan(lo) or math.isnan(hi) else (lo, hi)
 
     @property
     def style_bank(self) -> StyleBank | None:
@@ -119,6 +133,30 @@ def check_floor_height(value: Any, where: str) -> float:
     return float(value)
 
 
+def check_tempo_range(value: Any, where: str) -> tuple[float, float]:
+    """A tempo range as (lo, hi) BPM with 0 < lo <= hi, (nan, nan) for None or two NaNs (not recorded), or a
+    ConfigError."""
+    if value is None:
+        return math.nan, math.nan
+    values = value.tolist() if torch.is_tensor(value) else value
+    try:
+        lo, hi = (float(v) for v in values)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where} must be two tempi [lowest, highest] in BPM, got {value!r}") from None
+    if math.isnan(lo) and math.isnan(hi):
+        return math.nan, math.nan
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+        raise ConfigError(f"{where} must be two tempi [lowest, highest] with 0 < lowest <= highest, got {value!r}")
+    return lo, hi
+
+
+def _default_tempo_range(module: torch.nn.Module, state: dict[str, Any], prefix: str, *args: Any) -> None:
+    """Checkpoints written before the training tempo range was stored load with none (NaN)."""
+    key = prefix + "tempo_range_bpm"
+    if key not in state and isinstance(module, TrainedModel):
+        state[key] = torch.full((2,), math.nan)
+
+
 def _default_floor_height(module: torch.nn.Module, state: dict[str, Any], prefix: str, *args: Any) -> None:
     """Checkpoints written before the floor height was stored load with the model's current one (0.0 when new)."""
     key = prefix + "floor_height"
@@ -156,6 +194,11 @@ def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> Tr
     if "floor_height" in state:
         try:
             check_floor_height(state["floor_height"], "its floor_height")
+        except ConfigError as e:
+            raise CheckpointError(f"checkpoint {source}: {e}; the file is damaged or not a dgsdp checkpoint") from e
+    if "tempo_range_bpm" in state:
+        try:
+            check_tempo_range(state["tempo_range_bpm"], "its tempo_range_bpm")
         except ConfigError as e:
             raise CheckpointError(f"checkpoint {source}: {e}; the file is damaged or not a dgsdp checkpoint") from e
     try:

@@ -96,9 +96,10 @@ class GuidanceDistillation(DanceDiffusion):
                 raise ConfigError(
                     f"the teacher's weights do not fit the student (missing {missing}, extra {unexpected})"
                 )
-        # the teacher's normalisation, floor and style bank: the student predicts in the teacher's units
+        # the teacher's normalisation, floor, tempo range and style bank: the student predicts in the teacher's units
         self.normalizer.load_state_dict(teacher.normalizer.state_dict())
         self.floor_height.copy_(teacher.floor_height)
+        self.tempo_range_bpm.copy_(teacher.tempo_range_bpm)
         self.style_vectors.copy_(teacher.style_vectors)
         self.style_genre_index.copy_(teacher.style_genre_index)
 

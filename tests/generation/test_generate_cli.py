@@ -195,3 +195,52 @@ def test_studio_takes_the_same_limits():
     assert config.finishing == Finishing(max_turn_rate=None, max_air_seconds=1.5, beat_sync_reach=0.3)
     with pytest.raises(SystemExit):
         parse_args(["--max-tilt-rate", "0"])
+
+
+def test_songs_far_faster_than_the_training_music_are_given_in_half_time(tmp_path, checkpoint, caplog):
+    """train.py records the training songs' tempi (the tiny data: mBR0 and mKR2, 80 and 100 BPM); a 170 BPM song
+    is then given to the model with every other beat (85 BPM), unless sampling.tempo_fold=false."""
+    import logging
+
+    from dgsdp.audio.librosa_encoder import BEAT_COLUMN, ENVELOPE_COLUMN
+    from dgsdp.audio.tempo import fold_beats
+    from dgsdp.generation import DanceGenerator
+    from dgsdp.sampling import SamplingSettings
+    from dgsdp.trained import load_model
+
+    assert load_model(checkpoint).tempo_range == (80.0, 100.0)
+    fast, steady = tmp_path / "fast_mBR9.wav", tmp_path / "steady.wav"  # mBR9: the tracker is told 170 BPM
+    write_click_song(fast, 8.0, bpm=170.0)
+    write_click_song(steady, 8.0, bpm=120.0)  # 0.26 octaves above 100, 60 BPM would be 0.42 below 80: as it is
+    gen = DanceGenerator.from_checkpoint(checkpoint, cache_dir=tmp_path / "cache")
+    tracked = gen.cache.features_for_file(gen.audio_encoder, fast, music_id=fast.stem)
+    beats = np.flatnonzero(tracked[:, BEAT_COLUMN])
+    fold = gen.tempo_fold(fast)
+    assert fold.octaves == 1 and fold.range_bpm == (80.0, 100.0) and fold.bpm == pytest.approx(170.0, rel=0.02)
+    given = gen.music_features(fast)[0].numpy()
+    half = fold_beats(beats, 1, tracked[:, ENVELOPE_COLUMN])
+    assert len(half) == (len(beats) + 1) // 2 or len(half) == len(beats) // 2
+    np.testing.assert_array_equal(np.flatnonzero(given[:, BEAT_COLUMN]), half)
+    np.testing.assert_array_equal(np.delete(given, BEAT_COLUMN, axis=1), np.delete(tracked, BEAT_COLUMN, axis=1))
+    off = SamplingSettings(tempo_fold=False)
+    np.testing.assert_array_equal(gen.music_features(fast, sampling=off)[0].numpy(), tracked)
+    assert gen.tempo_fold(fast, off).octaves == 0
+    assert gen.tempo_fold(fast, SamplingSettings(tempo_range_bpm=[150, 200])).octaves == 0  # 170 is inside
+    assert gen.tempo_fold(steady).octaves == 0
+    dance = gen.dance_to_song(fast, "krump", sampling=SamplingSettings(steps=1), seconds=3.0)
+    assert dance.tempo == fold
+    # a checkpoint that recorded no tempi: one warning, the beats as tracked
+    gen.model.set_tempo_range(None)
+    with caplog.at_level(logging.WARNING, logger="dgsdp.generation.pipeline"):
+        np.testing.assert_array_equal(gen.music_features(fast)[0].numpy(), tracked)
+        gen.music_features(fast)
+    assert sum("records no training tempi" in r.getMessage() for r in caplog.records) == 1
+    assert gen.tempo_fold(fast, SamplingSettings(tempo_range_bpm=[80, 100])) == fold
+
+
+@pytest.mark.parametrize("bad", ["[100]", "[120,80]", "[0,100]", "[80,100,120]"])
+def test_a_bad_tempo_range_is_one_clear_error(tmp_path, checkpoint, bad):
+    from dgsdp.cli.generate import generate_settings
+
+    with pytest.raises(ConfigError, match=r"sampling.tempo_range_bpm must be \[lowest, highest\]"):
+        generate_settings(gen_config(tmp_path, checkpoint, "x.wav", f"sampling.tempo_range_bpm={bad}"))

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from dgsdp.audio.tempo import TempoFold
 from dgsdp.benchmarks.realsongs.measures import CHECK_NAMES, PHASE_BINS, SongFigures, phase_distance
 from dgsdp.benchmarks.realsongs.songs import song_family
 from dgsdp.errors import ConfigError
@@ -62,6 +63,7 @@ class SongResult:
     error: str | None = None
     checks: dict[str, bool] = field(default_factory=dict)
     raw_checks: dict[str, bool] = field(default_factory=dict)
+    tempo: TempoFold | None = None  # the song's tempo and how its beats were given to the model
 
     @property
     def passed(self) -> bool:
@@ -237,3 +239,14 @@ def style_summary_lines(
             )
         lines.append(line)
     return lines
+
+
+def tempo_line(results: Sequence[SongResult]) -> str:
+    """Which songs' beats the model was given folded (``sampling.tempo_fold``), one line."""
+    folded = {r.name: r.tempo for r in results if r.tempo is not None and r.tempo.octaves}
+    ranges = sorted({f"{t.range_bpm[0]:g}-{t.range_bpm[1]:g}" for t in folded.values() if t.range_bpm})
+    songs = ", ".join(f"{name} {t.bpm:.1f}->{t.given_bpm:.1f}" for name, t in sorted(folded.items()))
+    return (
+        f"tempo folds (the beats given to the model, BPM; trained on {', '.join(ranges) or 'n/a'} BPM): "
+        f"{len(folded)} of {len({r.name for r in results})} songs" + (f": {songs}" if songs else "")
+    )

@@ -37,6 +37,7 @@ from dgsdp.benchmarks.realsongs.report import (
     style_plan,
     style_summary_lines,
     summary_line,
+    tempo_line,
 )
 from dgsdp.benchmarks.realsongs.songs import DEBIAN_MUSIC_DIRS, MIN_SONG_SECONDS, prepare
 from dgsdp.errors import ConfigError, DgsdpError
@@ -103,7 +104,8 @@ def run_benchmark(
         first.setdefault(pair[0], pair)
     print(
         f"checkpoint {checkpoint}; {len(songs)} songs in {folder}; sampling {sampling.method}-{sampling.steps} "
-        f"guidance music={sampling.guidance.music:g} project_rotations={sampling.project_rotations}; "
+        f"guidance music={sampling.guidance.music:g} project_rotations={sampling.project_rotations} "
+        f"tempo_fold={_tempo_setting(sampling, generator)}; "
         f"windows {window} frames, stride {stride}; floor z={floor:g} m; "
         f"training mean joint speed {_fmt(train_speed, '.3f')} m/s from {train_source}",
         file=out,
@@ -137,6 +139,7 @@ def run_benchmark(
             start = time.perf_counter()
             dance = job.dance(song, plans[song_style])
             result.dance_seconds = time.perf_counter() - start
+            result.tempo = dance.tempo
             if motions_dir is not None:
                 # a song's first dance is <song>; its dances in other genres are <song>__<genre>
                 name = (
@@ -166,6 +169,7 @@ def run_benchmark(
         print("\n".join(style_lines), file=out, flush=True)
     raw_line, _ = raw_summary(results, train_speed, None if reference is None else reference.get("speed_by_phase"))
     print(raw_line, file=out, flush=True)
+    print(tempo_line(results), file=out, flush=True)
     if json_path is not None:
         from dgsdp.utils.io import atomic_write_text
 
@@ -208,15 +212,28 @@ def run_benchmark(
                     "checks": r.checks,
                     "raw_checks": r.raw_checks,
                     "passed": r.passed,
+                    "tempo": None if r.tempo is None else {**asdict(r.tempo), "given_bpm": r.tempo.given_bpm},
                 }
                 for r in results
             ],
             "summary": summary_line(results, train_speed),
             "style_summaries": style_lines,
             "raw_summary": raw_line,
+            "tempo_summary": tempo_line(results),
         }
         atomic_write_text(json_path, json.dumps(_no_nan(payload), indent=2, allow_nan=False) + "\n")
     return results
+
+
+def _tempo_setting(sampling: Any, generator: Any) -> str:
+    """The header's tempo folding: off, or on with the training tempi it folds toward and where they came from."""
+    if not sampling.tempo_fold:
+        return "off"
+    if sampling.tempo_range_bpm:
+        lo, hi = sampling.tempo_range_bpm
+        return f"on({lo:g}-{hi:g} BPM, sampling.tempo_range_bpm)"
+    known = generator.model.tempo_range
+    return "on(no training tempi recorded)" if known is None else f"on({known[0]:g}-{known[1]:g} BPM, checkpoint)"
 
 
 def _prepare_main(argv: list[str]) -> int:
