@@ -136,7 +136,10 @@ def dance_songs(settings: GenerateSettings) -> GenerationReport:
             stem += "_"
         used.add(stem)
         try:
-            motions = dancer.dance(song, plan).motion
+            dance = dancer.dance(song, plan)
+            motions = dance.motion
+            if dance.tempo.octaves:  # the user should know the model danced it in half (double) time
+                log.info("%s: %s (sampling.tempo_fold)", song.name, dance.tempo.describe())
             files: list[Path] = []
             for k, motion in enumerate(motions):
                 name = stem if settings.num_samples == 1 else f"{stem}_sample{k}"

@@ -319,19 +319,22 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     code = rs.main([
         str(songs), "--checkpoint", checkpoint, "device=cpu", "sampling.steps=2", "progress=false",
         f"paths.cache_dir={tmp_path / 'cache'}", "--json", str(report), "--motions", str(tmp_path / "dances"),
+        "sampling.tempo_range_bpm=[40,60]",  # the 120 and 100 BPM clicks are given in half time
     ])  # fmt: skip
     assert code == 0
     printed = capsys.readouterr().out.splitlines()
     data = json.loads(report.read_text())
     # each song in one genre, then the genres no song got on the original songs in turn (the broken one too)
     n_extra = len(data["songs"]) - 3
-    assert printed[-2].startswith(f"songs={3 + n_extra} ") and f" errors={1 + n_extra // 2} " in printed[-2]
+    assert printed[-3].startswith(f"songs={3 + n_extra} ") and f" errors={1 + n_extra // 2} " in printed[-3]
     first_styles = {s["style"] for s in data["songs"]}
-    assert printed[-1].startswith("raw: bas_above_shifted=") and printed[-1].split()[-1] in (
+    assert printed[-2].startswith("raw: bas_above_shifted=") and printed[-2].split()[-1] in (
         "model_beat_target=pass", "model_beat_target=FAIL"
     )  # fmt: skip
+    assert printed[-1].startswith("tempo folds (training tempi 40-60 BPM; song BPM -> BPM given): 2 of 3 songs: ")
+    assert any("tempo_fold=on(40-60 BPM, sampling.tempo_range_bpm);" in line for line in printed)
     assert any(line.startswith("zz-broken.wav") and "ERROR" in line for line in printed)
-    assert any("sampling dpmpp_2m-2 guidance music=2 project_rotations=root;" in line for line in printed)
+    assert any("sampling dpmpp_2m-2 guidance music=2 project_rotations=root " in line for line in printed)
     assert data["sampling"]["steps"] == 2 and data["sampling"]["project_rotations"] == "root"
     by_name: dict[str, dict] = {}
     for song in data["songs"]:  # a song's first dance: in its own genre
@@ -347,6 +350,8 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
         assert set(song["raw_checks"]) == set(song["checks"])
         assert song["figures"]["mean_speed_m_s"] > 0 and song["raw_figures"]["mean_speed_m_s"] > 0
         assert len(song["figures"]["speed_by_phase"]) == 8
+        assert song["tempo"]["octaves"] == 1 and song["tempo"]["range_bpm"] == [40.0, 60.0]
+        assert song["tempo"]["given_bpm"] == pytest.approx(song["tempo"]["bpm"] / 2)
         finishing = song["finishing"]  # the finishing ran, and how far it moved the joints is measured
         assert finishing["beats"] >= 2 and 0 <= finishing["anchored_beats"] <= finishing["beats"]
         assert finishing["moved_max_cm"] >= finishing["moved_mean_cm"] > 0
@@ -416,16 +421,18 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     assert {p.name for p in (tmp_path / "all").iterdir() if p.is_file()} == {f"clicks__{g}.npy" for g in genres}
     summary = printed.index(next(line for line in printed if line.startswith("songs=")))
     assert printed[summary].startswith(f"songs={len(genres)} ")
-    assert [line.split()[0] for line in printed[summary + 1 : -1]] == [f"style={g}" for g in genres]
-    assert printed[-1].startswith("raw: ")
-    for song, line in zip(data["songs"], printed[summary + 1 : -1]):
+    assert [line.split()[0] for line in printed[summary + 1 : -2]] == [f"style={g}" for g in genres]
+    assert printed[-2].startswith("raw: ") and printed[-1].startswith("tempo folds")
+    # 120 BPM: 0.26 octaves above the tiny data's 80-100 BPM, nearer than 60 BPM
+    assert printed[-1] == "tempo folds (training tempi 80-100 BPM; song BPM -> BPM given): 0 of 1 songs"
+    for song, line in zip(data["songs"], printed[summary + 1 : -2]):
         assert f" pass={int(song['passed'])} " in line
         genre = reference["by_genre"].get(song["style"])  # a genre with training dances: its own speed beside
         if genre is not None:
             ratio = song["figures"]["mean_speed_m_s"] / genre["mean_speed_m_s"]
             assert f" genre_train_speed={genre['mean_speed_m_s']:.3f} " in line
             assert f" speed_ratio_genre={ratio:.2f} " in line
-    assert data["style_summaries"] == printed[summary + 1 : -1]
+    assert data["style_summaries"] == printed[summary + 1 : -2]
     assert any("genre_train_speed=" in line for line in data["style_summaries"])
 
 

@@ -242,11 +242,12 @@ def style_summary_lines(
 
 
 def tempo_line(results: Sequence[SongResult]) -> str:
-    """Which songs' beats the model was given folded (``sampling.tempo_fold``), one line."""
+    """Which songs' beats the model was given folded (``sampling.tempo_fold``), and toward which training tempi."""
+    tempi = [r.tempo for r in results if r.tempo is not None]
+    ranges = sorted({f"{t.range_bpm[0]:g}-{t.range_bpm[1]:g} BPM" for t in tempi if t.range_bpm})
     folded = {r.name: r.tempo for r in results if r.tempo is not None and r.tempo.octaves}
-    ranges = sorted({f"{t.range_bpm[0]:g}-{t.range_bpm[1]:g}" for t in folded.values() if t.range_bpm})
     songs = ", ".join(f"{name} {t.bpm:.1f}->{t.given_bpm:.1f}" for name, t in sorted(folded.items()))
     return (
-        f"tempo folds (the beats given to the model, BPM; trained on {', '.join(ranges) or 'n/a'} BPM): "
+        f"tempo folds (training tempi {', '.join(ranges) or 'none: folding off'}; song BPM -> BPM given): "
         f"{len(folded)} of {len({r.name for r in results})} songs" + (f": {songs}" if songs else "")
     )
