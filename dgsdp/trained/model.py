@@ -196,7 +196,7 @@ def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> Tr
             check_floor_height(state["floor_height"], "its floor_height")
         except ConfigError as e:
             raise CheckpointError(f"checkpoint {source}: {e}; the file is damaged or not a dgsdp checkpoint") from e
-    if "tempo_range_bpm" in state:
+    if "tempo_range_bpm" in state and tuple(state["tempo_range_bpm"].shape) == (2,):  # other shapes: load_state_dict
         try:
             check_tempo_range(state["tempo_range_bpm"], "its tempo_range_bpm")
         except ConfigError as e:
