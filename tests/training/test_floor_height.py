@@ -1,6 +1,8 @@
 """The floor height is a stored fact of each run: measured on the training motions, kept in every checkpoint,
-read back by the generator; checkpoints from before it existed load with 0.0; a damaged value is refused."""
+read back by the generator; checkpoints from before it existed load with 0.0; a damaged value is refused. So is the
+training songs' tempo range (for tempo folding), which older checkpoints load without."""
 
+import math
 import pickle
 import shutil
 import sys
@@ -79,3 +81,29 @@ def test_training_stores_the_floor_of_its_data(tmp_path, tiny_synthetic):
     ckpt = torch.load(result["checkpoint"], map_location="cpu", weights_only=True)
     assert float(ckpt["state_dict"]["floor_height"]) == pytest.approx(0.25, abs=1e-3)
     assert float(load_model(result["checkpoint"]).floor_height) == pytest.approx(0.25, abs=1e-3)
+
+
+def test_tempo_range_round_trips_and_old_checkpoints_have_none(tmp_path):
+    model = tiny_model()
+    assert model.tempo_range is None  # a model that was not trained on songs with known tempi
+    model.set_tempo_range((80.0, 135.0))
+    assert load_model(save(tmp_path / "new.ckpt", model)).tempo_range == (80.0, 135.0)
+    state = {k: v for k, v in model.state_dict().items() if k != "tempo_range_bpm"}
+    assert load_model(save(tmp_path / "old.ckpt", model, state)).tempo_range is None
+    model.set_tempo_range(None)
+    assert model.tempo_range is None and all(math.isnan(v) for v in model.tempo_range_bpm.tolist())
+
+
+@pytest.mark.parametrize(
+    "value",
+    [torch.tensor([135.0, 80.0]), torch.tensor([0.0, 80.0]), torch.tensor([80.0, float("inf")]), torch.zeros(3)],
+    ids=["reversed", "zero", "inf", "three numbers"],
+)
+def test_damaged_tempo_range_is_refused(tmp_path, value):
+    model = tiny_model()
+    state = dict(model.state_dict())
+    state["tempo_range_bpm"] = value
+    with pytest.raises(CheckpointError, match="tempo_range_bpm|does not match"):
+        load_model(save(tmp_path / "bad.ckpt", model, state))
+    with pytest.raises(ConfigError, match="tempo range"):
+        model.set_tempo_range(value.tolist())
