@@ -43,15 +43,35 @@ def test_checkpoint_without_floor_height_loads_with_zero(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "value",
-    [torch.tensor(float("nan")), torch.tensor(float("inf")), torch.tensor(55.0), torch.zeros(2), torch.tensor(1)],
-    ids=["nan", "inf", "far away", "two numbers", "integer"],
+    ("key", "value"),
+    [
+        ("floor_height", torch.tensor(float("nan"))),
+        ("floor_height", torch.tensor(float("inf"))),
+        ("floor_height", torch.tensor(55.0)),
+        ("floor_height", torch.zeros(2)),
+        ("floor_height", torch.tensor(1)),
+        ("tempo_range_bpm", torch.tensor([135.0, 80.0])),
+        ("tempo_range_bpm", torch.tensor([0.0, 80.0])),
+        ("tempo_range_bpm", torch.tensor([80.0, float("inf")])),
+        ("tempo_range_bpm", torch.zeros(3)),
+    ],
+    ids=[
+        "nan",
+        "inf",
+        "far away",
+        "two numbers",
+        "integer",
+        "tempi reversed",
+        "tempo zero",
+        "tempo inf",
+        "three tempi",
+    ],
 )
-def test_damaged_floor_height_is_refused(tmp_path, value):
+def test_damaged_floor_height_or_tempo_range_is_refused(tmp_path, key, value):
     model = tiny_model()
     state = dict(model.state_dict())
-    state["floor_height"] = value
-    with pytest.raises(CheckpointError, match="floor_height|floor"):
+    state[key] = value
+    with pytest.raises(CheckpointError, match=f"{key}|floor|does not match"):
         load_model(save(tmp_path / "bad.ckpt", model, state))
 
 
@@ -94,16 +114,8 @@ def test_tempo_range_round_trips_and_old_checkpoints_have_none(tmp_path):
     assert model.tempo_range is None and all(math.isnan(v) for v in model.tempo_range_bpm.tolist())
 
 
-@pytest.mark.parametrize(
-    "value",
-    [torch.tensor([135.0, 80.0]), torch.tensor([0.0, 80.0]), torch.tensor([80.0, float("inf")]), torch.zeros(3)],
-    ids=["reversed", "zero", "inf", "three numbers"],
-)
-def test_damaged_tempo_range_is_refused(tmp_path, value):
+def test_set_tempo_range_checks_its_value():
     model = tiny_model()
-    state = dict(model.state_dict())
-    state["tempo_range_bpm"] = value
-    with pytest.raises(CheckpointError, match="tempo_range_bpm|does not match"):
-        load_model(save(tmp_path / "bad.ckpt", model, state))
-    with pytest.raises(ConfigError, match="tempo range"):
-        model.set_tempo_range(value.tolist())
+    for bad in ([135.0, 80.0], [0.0, 80.0], [80.0, float("inf")], [1.0, 2.0, 3.0], "fast"):
+        with pytest.raises(ConfigError, match="tempo range"):
+            model.set_tempo_range(bad)
