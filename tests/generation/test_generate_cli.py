@@ -244,3 +244,18 @@ def test_a_bad_tempo_range_is_one_clear_error(tmp_path, checkpoint, bad):
 
     with pytest.raises(ConfigError, match=r"sampling.tempo_range_bpm must be \[lowest, highest\]"):
         generate_settings(gen_config(tmp_path, checkpoint, "x.wav", f"sampling.tempo_range_bpm={bad}"))
+
+
+def test_generate_says_which_songs_it_gave_in_half_time(tmp_path, checkpoint, caplog):
+    import logging
+
+    fast = tmp_path / "fast_mBR9.wav"  # 170 BPM; the tiny checkpoint was trained on 80-100 BPM
+    write_click_song(fast, 4.0, bpm=170.0)
+    with caplog.at_level(logging.INFO, logger="dgsdp.generation.songs"):
+        generate(gen_config(tmp_path, checkpoint, fast, "formats=[npy]"))
+    said = [r.getMessage() for r in caplog.records if "sampling.tempo_fold" in r.getMessage()]
+    assert len(said) == 1 and "fast_mBR9.wav: " in said[0] and "given in half time" in said[0]
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="dgsdp.generation.songs"):
+        generate(gen_config(tmp_path / "off", checkpoint, fast, "formats=[npy]", "sampling.tempo_fold=false"))
+    assert not any("sampling.tempo_fold" in r.getMessage() for r in caplog.records)
