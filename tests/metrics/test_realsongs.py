@@ -218,6 +218,33 @@ def test_all_styles_dances_every_song_in_every_genre():
         rs.style_plan(songs, [None], None, all_styles=True)
 
 
+def test_genre_speed_and_tempo_lines():
+    from dgsdp.audio.tempo import TempoFold
+
+    def result(name: str, style: str, speed: float, raw_speed: float, error: str | None = None) -> rs.SongResult:
+        r = rs.SongResult(
+            name, style, error=error, tempo=TempoFold(160.0, 1, (80.0, 135.0)) if "fast" in name else None
+        )
+        if error is None:
+            r.figures = rs.SongFigures(10.0, 3.0, 0.0, 0.0, 1.0, speed, 0.5, 0.2, 0.5, 0.2, 8, 20, 3, [0.4] * 8)
+            r.raw = rs.SongFigures(10.0, 3.0, 0.0, 0.0, 1.0, raw_speed, 0.5, 0.2, 0.5, 0.2, 8, 20, 3, [0.4] * 8)
+        return r
+
+    by_genre = {"PO": {"mean_speed_m_s": 0.3}, "JS": {"mean_speed_m_s": 0.7}}
+    results = [
+        result("a.wav", "PO", 0.38, 0.40),  # 1.27 and 1.33 of PO's 0.3: in, out
+        result("fast.wav", "JS", 0.50, 0.48),  # 0.714 and 0.686 of JS's 0.7: in, out
+        result("b.wav", "PO", 0.20, 0.25),  # 0.67 and 0.83: out, in
+        result("c.wav", "BR", 0.5, 0.5),  # no training dances of BR: not counted
+        result("d.wav", "PO", 0.0, 0.0, error="unreadable"),
+    ]
+    assert rs.genre_speed_line(results, by_genre).endswith("finished=2/3 raw=1/3")
+    assert rs.genre_speed_line(results, None).endswith("finished=0/0 raw=0/0")
+    assert rs.tempo_line(results) == (
+        "tempo folds (training tempi 80-135 BPM; song BPM -> BPM given): 1 of 5 songs: fast.wav 160.0->80.0"
+    )
+
+
 def test_raw_summary_holds_the_model_to_its_beat_target():
     def result(bas: float, edge: float, profile: list[float]) -> rs.SongResult:
         r = rs.SongResult("x.wav", "BR")
@@ -326,12 +353,14 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     data = json.loads(report.read_text())
     # each song in one genre, then the genres no song got on the original songs in turn (the broken one too)
     n_extra = len(data["songs"]) - 3
-    assert printed[-3].startswith(f"songs={3 + n_extra} ") and f" errors={1 + n_extra // 2} " in printed[-3]
+    assert printed[-4].startswith(f"songs={3 + n_extra} ") and f" errors={1 + n_extra // 2} " in printed[-4]
     first_styles = {s["style"] for s in data["songs"]}
-    assert printed[-2].startswith("raw: bas_above_shifted=") and printed[-2].split()[-1] in (
+    assert printed[-3].startswith("raw: bas_above_shifted=") and printed[-3].split()[-1] in (
         "model_beat_target=pass", "model_beat_target=FAIL"
     )  # fmt: skip
     assert printed[-1].startswith("tempo folds (training tempi 40-60 BPM; song BPM -> BPM given): 2 of 3 songs: ")
+    assert printed[-2].startswith("genre speed (reported, not a target): within 30% of the asked genre's training ")
+    assert printed[-2] == data["genre_speed_summary"]
     assert any("tempo_fold=on(40-60 BPM, sampling.tempo_range_bpm);" in line for line in printed)
     assert any(line.startswith("zz-broken.wav") and "ERROR" in line for line in printed)
     assert any("sampling dpmpp_2m-2 guidance music=2 project_rotations=root " in line for line in printed)
@@ -421,18 +450,18 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     assert {p.name for p in (tmp_path / "all").iterdir() if p.is_file()} == {f"clicks__{g}.npy" for g in genres}
     summary = printed.index(next(line for line in printed if line.startswith("songs=")))
     assert printed[summary].startswith(f"songs={len(genres)} ")
-    assert [line.split()[0] for line in printed[summary + 1 : -2]] == [f"style={g}" for g in genres]
-    assert printed[-2].startswith("raw: ") and printed[-1].startswith("tempo folds")
+    assert [line.split()[0] for line in printed[summary + 1 : -3]] == [f"style={g}" for g in genres]
+    assert printed[-3].startswith("raw: ") and printed[-1].startswith("tempo folds")
     # 120 BPM: 0.26 octaves above the tiny data's 80-100 BPM, nearer than 60 BPM
     assert printed[-1] == "tempo folds (training tempi 80-100 BPM; song BPM -> BPM given): 0 of 1 songs"
-    for song, line in zip(data["songs"], printed[summary + 1 : -2]):
+    for song, line in zip(data["songs"], printed[summary + 1 : -3]):
         assert f" pass={int(song['passed'])} " in line
         genre = reference["by_genre"].get(song["style"])  # a genre with training dances: its own speed beside
         if genre is not None:
             ratio = song["figures"]["mean_speed_m_s"] / genre["mean_speed_m_s"]
             assert f" genre_train_speed={genre['mean_speed_m_s']:.3f} " in line
             assert f" speed_ratio_genre={ratio:.2f} " in line
-    assert data["style_summaries"] == printed[summary + 1 : -2]
+    assert data["style_summaries"] == printed[summary + 1 : -3]
     assert any("genre_train_speed=" in line for line in data["style_summaries"])
 
 

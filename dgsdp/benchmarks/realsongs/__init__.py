@@ -42,6 +42,7 @@ from dgsdp.benchmarks.realsongs.measures import (
 from dgsdp.benchmarks.realsongs.report import (
     SongResult,
     format_row,
+    genre_speed_line,
     header,
     low_phase,
     raw_summary,
@@ -49,6 +50,7 @@ from dgsdp.benchmarks.realsongs.report import (
     style_summary_lines,
     styles_for,
     summary_line,
+    tempo_line,
 )
 from dgsdp.benchmarks.realsongs.run import main, run_benchmark
 from dgsdp.benchmarks.realsongs.songs import SongInfo, analyse_song, pick_varied, prepare, song_family, write_versions
@@ -56,7 +58,7 @@ from dgsdp.benchmarks.realsongs.songs import SongInfo, analyse_song, pick_varied
 __all__ = [
     "BAS_VARIANTS", "low_phase", "phase_bins", "phase_distance", "raw_summary", "speed_by_phase",
     "BeatScores", "SongFigures", "SongInfo", "SongResult", "analyse_song", "beat_scores", "dance_figures",
-    "floating_fraction", "format_row", "header", "main", "mean_joint_speed", "p999_joint_speed", "penetration_cm",
+    "floating_fraction", "format_row", "genre_speed_line", "header", "main", "mean_joint_speed", "p999_joint_speed", "penetration_cm",
     "pick_varied", "prepare", "run_benchmark", "seam_ratio", "song_family", "style_plan", "style_summary_lines",
-    "styles_for", "summary_line", "training_figures", "window_boundaries", "windowed_speed", "write_versions",
+    "styles_for", "summary_line", "tempo_line", "training_figures", "window_boundaries", "windowed_speed", "write_versions",
 ]  # fmt: skip

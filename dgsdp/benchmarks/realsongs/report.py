@@ -12,7 +12,13 @@ from typing import Any
 import numpy as np
 
 from dgsdp.audio.tempo import TempoFold
-from dgsdp.benchmarks.realsongs.measures import CHECK_NAMES, PHASE_BINS, SongFigures, phase_distance
+from dgsdp.benchmarks.realsongs.measures import (
+    CHECK_NAMES,
+    PHASE_BINS,
+    SPEED_RATIO_RANGE,
+    SongFigures,
+    phase_distance,
+)
 from dgsdp.benchmarks.realsongs.songs import song_family
 from dgsdp.errors import ConfigError
 
@@ -239,6 +245,23 @@ def style_summary_lines(
             )
         lines.append(line)
     return lines
+
+
+def genre_speed_line(results: Sequence[SongResult], by_genre: Mapping[str, Mapping[str, float]] | None) -> str:
+    """How many dances move within 30% of their own genre's training dances' mean speed (finished and raw): reported
+    beside the targets, not one of them (the speed target compares every dance with all the training data)."""
+    done = [r for r in results if r.error is None and (by_genre or {}).get(str(r.style)) is not None]
+
+    def within(figures: Any, genre: str) -> bool:
+        ratio = _ratio(figures.mean_speed_m_s, float(by_genre[genre]["mean_speed_m_s"]))  # type: ignore[index]
+        return SPEED_RATIO_RANGE[0] <= ratio <= SPEED_RATIO_RANGE[1]
+
+    final = sum(within(r.figures, str(r.style)) for r in done)
+    raw = sum(within(r.raw, str(r.style)) for r in done)
+    return (
+        f"genre speed (reported, not a target): within 30% of the asked genre's training dances "
+        f"finished={final}/{len(done)} raw={raw}/{len(done)}"
+    )
 
 
 def tempo_line(results: Sequence[SongResult]) -> str:

@@ -32,6 +32,7 @@ from dgsdp.benchmarks.realsongs.report import (
     SongResult,
     _fmt,
     format_row,
+    genre_speed_line,
     header,
     raw_summary,
     style_plan,
@@ -169,6 +170,8 @@ def run_benchmark(
         print("\n".join(style_lines), file=out, flush=True)
     raw_line, _ = raw_summary(results, train_speed, None if reference is None else reference.get("speed_by_phase"))
     print(raw_line, file=out, flush=True)
+    genre_line = genre_speed_line(results, by_genre)
+    print(genre_line, file=out, flush=True)
     print(tempo_line(results), file=out, flush=True)
     if json_path is not None:
         from dgsdp.utils.io import atomic_write_text
@@ -219,6 +222,7 @@ def run_benchmark(
             "summary": summary_line(results, train_speed),
             "style_summaries": style_lines,
             "raw_summary": raw_line,
+            "genre_speed_summary": genre_line,
             "tempo_summary": tempo_line(results),
         }
         atomic_write_text(json_path, json.dumps(_no_nan(payload), indent=2, allow_nan=False) + "\n")
