@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 import dgsdp.export
+from dgsdp.audio.tempo import TempoFold
 from dgsdp.errors import ConfigError
 from dgsdp.generation import DanceGenerator, EditSettings, Finishing, write_motion
 from dgsdp.motion import pose_to_joints
@@ -87,6 +88,7 @@ class Dance:
     song: Path
     style: str | None
     files: list[Path] = field(default_factory=list)
+    tempo: TempoFold = field(default_factory=TempoFold)  # how the song's beats were given to the model
 
 
 class Engine:
@@ -141,11 +143,12 @@ class Engine:
         plan = gen.resolve_style(request.style)
         _, n_frames = gen.music_features(request.song)  # the edit's frames depend on the song's length
         edit = edit_settings(request.edit, n_frames, gen.fps)
-        motion = gen.dance_to_song(
+        danced = gen.dance_to_song(
             request.song, plan, edit=edit, blend_seconds=float(request.blend_seconds), sampling=sampling,
             seed=int(request.seed), progress=progress,
             cleanup=bool(request.cleanup) and self.finishing.floor(), beat_sync=self.finishing.beat_sync(),
-        ).motion[0]  # fmt: skip
+        )  # fmt: skip
+        motion = danced.motion[0]
         title = f"{request.song.stem} | {plan.text}" if plan.text else request.song.stem
         files = write_motion(
             motion,
@@ -157,7 +160,7 @@ class Engine:
             floor_height=gen.floor_height,
         )
         joints = pose_to_joints(motion.double()).float().numpy()
-        return Dance(motion, joints, gen.fps, request.song, plan.text, files)
+        return Dance(motion, joints, gen.fps, request.song, plan.text, files, tempo=danced.tempo)
 
 
 def edit_settings(edit: Edit | None, n_frames: int, fps: int) -> EditSettings:

@@ -123,7 +123,7 @@ def test_generate_then_edit_through_the_pipeline(studio, studio_songs):
     joints_file = viewer["motion_url"].split("file=", 1)[1]
     data = json.loads(open(joints_file).read())
     assert data["n_frames"] == 90 and len(data["joints_mm"]) == 90 * 24 * 3
-    assert "90 frames (3.0 s)" in status
+    assert "90 frames (3.0 s)" in status and "the song:" not in status  # 120 BPM: given as it is
 
     lower = channels_for_joints(list(LOWER_BODY_JOINTS), with_root_and_contacts=True)
     upper = channels_for_joints(list(UPPER_BODY_JOINTS), with_root_and_contacts=False)
@@ -156,6 +156,15 @@ def test_generate_then_edit_through_the_pipeline(studio, studio_songs):
     new, cont_state = edit(label["continue"], seed_seconds=0.5)  # on to the 2 s song in the upload box
     assert new.shape == (60, 151) and cont_state["song"].endswith("two.wav")
     np.testing.assert_allclose(new[:15], base[-15:], atol=1e-4)
+
+
+def test_status_says_when_a_fast_song_was_given_in_half_time(studio, tmp_path):
+    from generation.gen_helpers import write_click_song
+
+    fast = tmp_path / "fast_mBR9.wav"  # 170 BPM; the tiny checkpoint was trained on 80-100 BPM
+    write_click_song(fast, 3.0, bpm=170.0)
+    status = studio.on_generate(str(fast), *settings(studio), progress=no_progress)[3]
+    assert "; the song: " in status and "given in half time" in status and "trained on 80-100 BPM" in status
 
 
 def test_errors_are_one_clear_message(studio, studio_songs, tmp_path):
