@@ -122,9 +122,9 @@ class LibrosaEncoder(AudioEncoder):
 
     def beat_frames(self, waveform: np.ndarray, music_id: str | None, features: np.ndarray) -> np.ndarray:
         """The beats of the beat column: the phase then agrees with the beats these features flag."""
-        return np.flatnonzero(features[:, BEAT_COLUMN])
+        return self.feature_beats(features)
 
-    def feature_beats(self, features: np.ndarray) -> np.ndarray | None:
+    def feature_beats(self, features: np.ndarray) -> np.ndarray:
         return np.flatnonzero(np.asarray(features)[:, BEAT_COLUMN])
 
     def with_beats(self, features: np.ndarray, beats: np.ndarray) -> np.ndarray:

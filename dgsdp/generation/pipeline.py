@@ -173,7 +173,32 @@ class DanceGenerator:
     ) -> tuple[torch.Tensor | None, int]:
         """Music features (T, Da) at 30 FPS of the whole song (or its first ``seconds``), and T. An encoder with
         ``per_window`` (EDGE's procedure) gives each long-form window of ``sampling`` its own features instead:
-        (n_windows, window, Da), each computed from the window's own audio."""
+        (n_windows, window, Da), each computed from the window's own audio. A song far outside the model's training
+        tempi has its beats folded (:meth:`tempo_fold`)."""
+        music, n_frames, _ = self._song_music(path, seconds, sampling)
+        return music, n_frames
+
+    def tempo_fold(self, path: Path, sampling: SamplingSettings | None = None) -> TempoFold:
+        """How :meth:`music_features` gives the model the beats of a song with ``sampling`` (its ``tempo_fold``): the
+        song's tempo and the octaves it is folded by toward the model's training tempi."""
+        return self._song_music(Path(path), None, sampling)[2]
+
+    def training_tempi(self, sampling: SamplingSettings | None = None) -> tuple[tuple[float, float] | None, str]:
+        """The tempo range songs are folded toward with ``sampling``, and where it comes from
+        (``sampling.tempo_range_bpm`` or ``checkpoint``); (None, why) when folding is off or no range is known."""
+        sampling = sampling or SamplingSettings()
+        if not sampling.tempo_fold:
+            return None, "off"
+        if sampling.tempo_range_bpm:
+            lo, hi = sampling.tempo_range_bpm
+            return (lo, hi), "sampling.tempo_range_bpm"
+        known = self.model.tempo_range
+        return (known, "checkpoint") if known is not None else (None, "no training tempi recorded")
+
+    def _song_music(
+        self, path: Path, seconds: float | None, sampling: SamplingSettings | None
+    ) -> tuple[torch.Tensor | None, int, TempoFold]:
+        """:meth:`music_features` and :meth:`tempo_fold` at once (the song's features are read once)."""
         duration = self.check_duration(path)
         limit = None if seconds is None else int(round(seconds * self.fps))
         short = AudioError(f"{path.name} is shorter than one motion frame ({1 / self.fps:.3f} s)")
@@ -181,9 +206,21 @@ class DanceGenerator:
             n = int(duration * self.fps) if limit is None else min(int(duration * self.fps), limit)
             if n < 1:
                 raise short
-            return (None if self.audio_encoder is None else self.music_windows(path, 0, n, sampling)), n
+            return (None if self.audio_encoder is None else self.music_windows(path, 0, n, sampling)), n, TempoFold()
         feats = self.cache.features_for_file(self.audio_encoder, path, music_id=path.stem)
-        fold, beats = self._tempo_fold(feats, sampling)
+        beats = self.audio_encoder.feature_beats(feats)
+        fold = TempoFold()
+        if beats is not None:
+            bpm = beats_tempo_bpm(beats, self.fps)
+            tempo_range, source = self.training_tempi(sampling)
+            if tempo_range is None and source != "off" and not self._warned_tempo:
+                log.warning(
+                    "this checkpoint records no training tempi, so songs far faster or slower than its training music "
+                    "are not folded to half or double time: give sampling.tempo_range_bpm=[lowest,highest] (or "
+                    "retrain: train.py records them)"
+                )
+                self._warned_tempo = True
+            fold = TempoFold(bpm, *((fold_octaves(bpm, tempo_range), tempo_range) if tempo_range else ()))
         if fold.octaves:
             strength = self.audio_encoder.beat_strength(feats)
             feats = self.audio_encoder.with_beats(feats, fold_beats(beats, fold.octaves, strength))
@@ -191,35 +228,7 @@ class DanceGenerator:
             feats = feats[:limit]
         if len(feats) < 1:
             raise short
-        return torch.from_numpy(np.array(feats)), len(feats)  # a copy: the cached array is read-only
-
-    def tempo_fold(self, path: Path, sampling: SamplingSettings | None = None) -> TempoFold:
-        """How :meth:`music_features` gives the model the beats of a song with ``sampling`` (its ``tempo_fold``): the
-        song's tempo and the octaves it is folded by toward the model's training tempi."""
-        if self.audio_encoder is None or self.audio_encoder.per_window:
-            return TempoFold()
-        feats = self.cache.features_for_file(self.audio_encoder, Path(path), music_id=Path(path).stem)
-        return self._tempo_fold(feats, sampling)[0]
-
-    def _tempo_fold(self, feats: np.ndarray, sampling: SamplingSettings | None) -> tuple[TempoFold, np.ndarray]:
-        sampling = sampling or SamplingSettings()
-        beats = self.audio_encoder.feature_beats(feats) if self.audio_encoder is not None else None
-        if beats is None:
-            return TempoFold(), np.zeros(0, np.int64)
-        bpm = beats_tempo_bpm(beats, self.fps)
-        if not sampling.tempo_fold:
-            return TempoFold(bpm), beats
-        tempo_range = tuple(sampling.tempo_range_bpm) if sampling.tempo_range_bpm else self.model.tempo_range
-        if tempo_range is None:
-            if not self._warned_tempo:
-                log.warning(
-                    "this checkpoint records no training tempi, so songs far faster or slower than its training music "
-                    "are not folded to half or double time: give sampling.tempo_range_bpm=[lowest,highest] (or "
-                    "retrain: train.py records them)"
-                )
-                self._warned_tempo = True
-            return TempoFold(bpm), beats
-        return TempoFold(bpm, fold_octaves(bpm, tempo_range), tempo_range), beats
+        return torch.from_numpy(np.array(feats)), len(feats), fold  # a copy: the cached array is read-only
 
     def music_windows(
         self,
@@ -386,7 +395,7 @@ class DanceGenerator:
         :meth:`finish` (``cleanup`` and ``beat_sync``)."""
         song = Path(song)
         plan = style if isinstance(style, StylePlan) else self.resolve_style(style)
-        music, n_frames = self.music_features(song, seconds, sampling)
+        music, n_frames, tempo = self._song_music(song, seconds, sampling)
         style = self.style_frames(plan, n_frames, blend_seconds)
         mask, known = self.edit_inputs(edit or EditSettings(), n_frames)
         motions = self.generate(
@@ -397,7 +406,6 @@ class DanceGenerator:
         beats = song_beats(song, self.cache, self.audio_encoder) if retime else None
         stats: list[dict[str, float]] = []
         finished = self.finish(motions, beats, mask=mask, cleanup=cleanup, beat_sync=beat_sync, stats=stats)
-        tempo = self.tempo_fold(song, sampling) if music is not None else TempoFold()
         return Dance(finished, self.fps, self.floor_height, song, plan.text, raw=motions, finishing=stats, tempo=tempo)
 
     def finish(

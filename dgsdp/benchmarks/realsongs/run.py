@@ -106,7 +106,7 @@ def run_benchmark(
     print(
         f"checkpoint {checkpoint}; {len(songs)} songs in {folder}; sampling {sampling.method}-{sampling.steps} "
         f"guidance music={sampling.guidance.music:g} project_rotations={sampling.project_rotations} "
-        f"tempo_fold={_tempo_setting(sampling, generator)}; "
+        f"tempo_fold={_tempo_setting(generator.training_tempi(sampling))}; "
         f"windows {window} frames, stride {stride}; floor z={floor:g} m; "
         f"training mean joint speed {_fmt(train_speed, '.3f')} m/s from {train_source}",
         file=out,
@@ -229,15 +229,12 @@ def run_benchmark(
     return results
 
 
-def _tempo_setting(sampling: Any, generator: Any) -> str:
+def _tempo_setting(tempi: tuple[tuple[float, float] | None, str]) -> str:
     """The header's tempo folding: off, or on with the training tempi it folds toward and where they came from."""
-    if not sampling.tempo_fold:
+    tempo_range, source = tempi
+    if source == "off":
         return "off"
-    if sampling.tempo_range_bpm:
-        lo, hi = sampling.tempo_range_bpm
-        return f"on({lo:g}-{hi:g} BPM, sampling.tempo_range_bpm)"
-    known = generator.model.tempo_range
-    return "on(no training tempi recorded)" if known is None else f"on({known[0]:g}-{known[1]:g} BPM, checkpoint)"
+    return f"on({source})" if tempo_range is None else f"on({tempo_range[0]:g}-{tempo_range[1]:g} BPM, {source})"
 
 
 def _prepare_main(argv: list[str]) -> int:
