@@ -155,20 +155,72 @@ def test_dance_figures_checks_follow_the_thresholds():
     figures = rs.dance_figures(joints, music_beats=np.arange(20, 300, 20), boundaries=[75, 150, 225])
     assert figures.seconds == pytest.approx(301 / FPS)
     speed = figures.mean_speed_m_s
-    assert all(figures.checks(train_speed=speed).values())
-    assert set(figures.checks(speed)) == {"p999", "penetration", "floating", "seam", "speed", "bas", "bas_edge"}
+    checks = figures.checks(rs.Reference(speed))
+    assert all(checks.values()) and set(checks) == {
+        "p999",
+        "penetration",
+        "floating",
+        "seam",
+        "speed",
+        "bas",
+        "bas_edge",
+    }
     # the speed target: within 30% of the training data's; without that speed it cannot pass
-    assert figures.checks(train_speed=speed / 1.29)["speed"] and not figures.checks(train_speed=speed / 1.31)["speed"]
-    assert figures.checks(train_speed=speed / 0.71)["speed"] and not figures.checks(train_speed=speed / 0.69)["speed"]
-    assert not figures.checks(train_speed=math.nan)["speed"]
+    for ratio, passes in ((1.29, True), (1.31, False), (0.71, True), (0.69, False)):
+        assert figures.checks(rs.Reference(speed / ratio))["speed"] == passes
+    assert not figures.checks(rs.Reference(math.nan))["speed"]
     joints[:, :, 2] += 0.5  # lifted 50 cm: floating in every frame
     joints[10, 3, 2] = -0.04  # and one joint 4 cm under the floor
-    checks = rs.dance_figures(joints, music_beats=[20, 40, 60], boundaries=[]).checks(speed)
+    checks = rs.dance_figures(joints, music_beats=[20, 40, 60], boundaries=[]).checks(rs.Reference(speed))
     assert not checks["floating"] and not checks["penetration"]
     assert checks["seam"]  # one window (no boundary): no seam to check
     still = np.repeat(joints[:1], len(joints), axis=0)  # a dance that does not move: its seam ratio is NaN
     still_figures = rs.dance_figures(still, music_beats=[20, 40, 60], boundaries=[75, 150])
-    assert math.isnan(still_figures.seam_ratio) and not still_figures.checks(speed)["seam"]
+    assert math.isnan(still_figures.seam_ratio) and not still_figures.checks(rs.Reference(speed))["seam"]
+
+
+def test_speed_targets_stretch_for_a_genre_beyond_them_and_never_tighten():
+    # the training data: mean 0.5 m/s, p99.9 6.5 m/s; a fast genre (p99.9 1.25 times all's) and a slow one
+    figures = {
+        "mean_speed_m_s": 0.5,
+        "p999_speed_m_s": 6.5,
+        "by_genre": {"JS": {"mean_speed_m_s": 0.7, "p999_speed_m_s": 8.125}, "MH": {"mean_speed_m_s": 0.3,
+                                                                                "p999_speed_m_s": 2.0}},
+    }  # fmt: skip
+    plain = rs.Reference.for_style(figures, "sharp krump with chest pops")  # no genre: every dance's targets
+    assert plain.speed_range() == pytest.approx((0.35, 0.65)) and plain.p999_limit() == 8.0
+    fast = rs.Reference.for_style(figures, "JS")
+    assert fast.speed_range() == pytest.approx((0.35, 0.91)) and fast.p999_limit() == pytest.approx(10.0)
+    slow = rs.Reference.for_style(figures, "MH")
+    assert slow.speed_range() == pytest.approx((0.21, 0.65)) and slow.p999_limit() == 8.0  # not tightened
+    assert fast.overall.speed_range() == plain.speed_range() and fast.overall.p999_limit() == 8.0
+    # a JS dance moving as its genre's training dances do fails every dance's targets and passes its genre's
+    assert fast.passes(0.8, 9.5) == (True, True) and plain.passes(0.8, 9.5) == (False, False)
+    assert fast.passes(0.95, 10.1) == (False, False)
+    r = rs.SongResult("x.wav", "JS", reference=fast)  # the summary line counts the passes that needed the stretch
+    r.figures = rs.SongFigures(10.0, 9.5, 0.0, 0.0, 1.0, 0.8, 0.5, 0.2, 0.5, 0.2, 8, 20, 3, [0.4] * 8)
+    r.checks = r.figures.checks(fast)
+    assert r.passed and rs.summary_line([r], 0.5).startswith("songs=1 pass=1 genre_stretch_passes=1 errors=0 ")
+    joints = stepping_dance()
+    joints[:, [7, 8, 10, 11], 2] = 0.0
+    one = rs.dance_figures(joints, music_beats=np.arange(20, 300, 20), boundaries=[75, 150, 225])
+    genre = {"mean_speed_m_s": one.mean_speed_m_s / 1.2, "p999_speed_m_s": 1.0}
+    slow_data = {"mean_speed_m_s": one.mean_speed_m_s / 1.5, "p999_speed_m_s": 6.5, "by_genre": {"JS": genre}}
+    assert one.checks(rs.Reference.for_style(slow_data, "JS"))["speed"]
+    assert not one.checks(rs.Reference.for_style(slow_data, "BR"))["speed"]
+    # --train-speed replaces the training data's mean; without the training data no speed passes, the p99.9 limit
+    # stays 8 m/s
+    assert rs.Reference.for_style(figures, "MH", 0.4).speed_range() == pytest.approx((0.21, 0.52))
+    assert rs.Reference.for_style(None, "JS").passes(0.5, 7.9) == (True, False)
+    # the training dances against the targets: as set, and stretched for their genre
+    figures["dances"] = [
+        {"genre": "JS", "mean_speed_m_s": 0.8, "p999_speed_m_s": 9.5},  # passes stretched only
+        {"genre": "MH", "mean_speed_m_s": 0.3, "p999_speed_m_s": 2.0},  # slower than 0.35: stretched only
+        {"genre": "BR", "mean_speed_m_s": 0.5, "p999_speed_m_s": 5.0},  # no genre figures: passes as set
+        {"genre": "JS", "mean_speed_m_s": 1.2, "p999_speed_m_s": 9.0},  # too fast even for JS
+    ]
+    assert rs.training_dances_passing(figures) == (1, 3, 4)
+    assert rs.training_dances_passing({"mean_speed_m_s": 0.5}) == (0, 0, 0)  # a cache without the dances
 
 
 def test_training_figures_without_the_training_data(tmp_path):
@@ -249,7 +301,7 @@ def test_raw_summary_holds_the_model_to_its_beat_target():
     def result(bas: float, edge: float, profile: list[float]) -> rs.SongResult:
         r = rs.SongResult("x.wav", "BR")
         r.raw = rs.SongFigures(10.0, 3.0, 0.0, 0.0, 1.0, 0.4, bas, 0.25, edge, 0.25, 8, 20, 3, profile)
-        r.raw_checks = r.raw.checks(train_speed=0.4)
+        r.raw_checks = r.raw.checks(rs.Reference(0.4))
         r.figures, r.checks = r.raw, r.raw_checks
         return r
 
@@ -273,7 +325,7 @@ def test_style_summary_counts_each_targets_misses_per_style():
         r = rs.SongResult("x.wav", style, error=error)
         if error is None:
             r.figures = rs.SongFigures(10.0, p999, 0.0, 0.0, 1.0, 0.4, bas, 0.25, bas, 0.25, 8, 20, 3, [0.4] * 8)
-            r.checks = r.figures.checks(train_speed=0.4)
+            r.checks = r.figures.checks(rs.Reference(0.4))
         return r
 
     results = [result("JS", 9.5, 0.3), result("JS", 4.0, 0.2), result("JS", 1.0, 0.0, error="unreadable"),
@@ -432,6 +484,19 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     steps = {genre: g["seconds"] * 30 - genres.count(genre) for genre, g in by_genre.items()}
     weighted = sum(by_genre[g]["mean_speed_m_s"] * n for g, n in steps.items()) / sum(steps.values())
     assert weighted == pytest.approx(data["train_speed_m_s"], rel=1e-9)
+    # each training dance's speeds, counted against the speed targets on the training data line
+    assert sorted(d["genre"] for d in reference["dances"]) == sorted(genres)
+    plain, stretched, n = rs.training_dances_passing(reference)
+    assert n == 2 and plain <= stretched
+    counted = f"; its dances within the speed and p999 targets: {plain}/2, {stretched}/2 stretched for their genre"
+    assert any(line.startswith("training data (2 dances") and line.endswith(counted) for line in printed)
+    # each dance's speed limits, from its genre's figures; the summary counts the passes that needed them
+    for song in data["songs"]:
+        expected = rs.Reference.for_style(reference, song["style"])
+        assert song["limits"]["p999_speed_m_s_below"] == pytest.approx(expected.p999_limit())
+        assert song["limits"]["speed_m_s_within"] == pytest.approx(list(expected.speed_range()))
+    needed = sum(s["passed"] and not all(s["checks_unstretched"].values()) for s in data["songs"] if s["figures"])
+    assert f" genre_stretch_passes={needed} " in printed[-4]
 
     # --all-styles: the one song in each of the checkpoint's genres, a row, a dance file and a summary line each
     one = tmp_path / "one"

@@ -16,6 +16,7 @@ from dgsdp.benchmarks.realsongs.measures import (
     CHECK_NAMES,
     PHASE_BINS,
     SPEED_RATIO_RANGE,
+    Reference,
     SongFigures,
     phase_distance,
 )
@@ -70,6 +71,7 @@ class SongResult:
     checks: dict[str, bool] = field(default_factory=dict)
     raw_checks: dict[str, bool] = field(default_factory=dict)
     tempo: TempoFold | None = None  # the song's tempo and how its beats were given to the model
+    reference: Reference | None = None  # what the speed targets measured it against
 
     @property
     def passed(self) -> bool:
@@ -172,8 +174,12 @@ def summary_line(results: Sequence[SongResult], train_speed: float) -> str:
     ratios = [_ratio(f.mean_speed_m_s, train_speed) for f in figs]
     ratios = [r for r in ratios if not math.isnan(r)]
     gen = [r.dance_seconds / r.figures.seconds for r in done if r.figures.seconds > 0]
+    stretched = sum(
+        r.passed and r.reference is not None and not all(r.figures.checks(r.reference.overall).values()) for r in done
+    )  # dances that pass only with their genre's stretch of the speed targets
     return (
-        f"songs={len(results)} pass={sum(r.passed for r in results)} errors={len(results) - len(done)} "
+        f"songs={len(results)} pass={sum(r.passed for r in results)} genre_stretch_passes={stretched} "
+        f"errors={len(results) - len(done)} "
         f"worst_p999={worst([f.p999_speed_m_s for f in figs])} worst_pen_cm={worst([f.penetration_cm for f in figs])} "
         f"worst_float={worst([f.floating_fraction for f in figs])} worst_seam={worst([f.seam_ratio for f in figs])} "
         f"speed_within_30pct={_count(done, 'checks', 'speed')} bas_above_shifted={_count(done, 'checks', 'bas')} "
@@ -220,8 +226,8 @@ def style_summary_lines(
     training data's figures per genre (``by_genre``, from :func:`training_figures`), a genre's line also compares
     its dances with that genre's own training dances: their mean and p99.9 joint speed (``genre_train_speed``,
     ``genre_train_p999``) and the mean speed ratio of the finished and the raw dances to it (``speed_ratio_genre``,
-    ``raw_speed_ratio_genre``). The targets stay those of every dance (the speed against all the training data);
-    these figures say whether a genre's dances move as that genre does."""
+    ``raw_speed_ratio_genre``). The targets pass a dance within 30% of all the training data's speed or of its
+    genre's (:class:`Reference`); these figures say whether a genre's dances move as that genre does."""
     lines = []
     for style in dict.fromkeys(r.style for r in results):
         mine = [r for r in results if r.style == style]
@@ -249,7 +255,8 @@ def style_summary_lines(
 
 def genre_speed_line(results: Sequence[SongResult], by_genre: Mapping[str, Mapping[str, float]] | None) -> str:
     """How many dances move within 30% of their own genre's training dances' mean speed (finished and raw): reported
-    beside the targets, not one of them (the speed target compares every dance with all the training data)."""
+    beside the targets, not one of them (the speed target also passes a dance within 30% of all the training
+    data's speed, :class:`Reference`)."""
     done = [r for r in results if r.error is None and (by_genre or {}).get(str(r.style)) is not None]
 
     def within(figures: Any, genre: str) -> bool:

@@ -22,8 +22,10 @@ from dgsdp.benchmarks.realsongs.measures import (
     PENETRATION_MAX_CM,
     SEAM_RATIO_MAX,
     SPEED_RATIO_RANGE,
+    Reference,
     _no_nan,
     dance_figures,
+    training_dances_passing,
     training_figures,
     window_boundaries,
 )
@@ -91,10 +93,10 @@ def run_benchmark(
     reference, train_source = training_figures(
         generator.spec, cfg.paths.cache_dir, floor_m=floor, window=window, stride=stride
     )
-    if train_speed is not None:
+    given_speed = train_speed  # --train-speed replaces the training data's mean speed
+    if given_speed is not None:
         train_source = "--train-speed"
-    else:
-        train_speed = math.nan if reference is None else float(reference["mean_speed_m_s"])
+    train_speed = Reference.for_style(reference, None, given_speed).speed_m_s
     genres: list[str | None] = [None]
     if generator.style_dim:
         genres = list(generator.embedder().vocab.codes)
@@ -121,7 +123,7 @@ def run_benchmark(
         print(
             f"training data ({r['n_dances']:g} dances, {r['seconds']:.0f} s) on the same measures: "
             f"p999={r['p999_speed_m_s']:.2f} pen_cm={r['penetration_cm']:.1f} float={r['floating_fraction']:.3f} "
-            f"seam={_fmt(r['seam_ratio'], '.2f')} speed={r['mean_speed_m_s']:.3f}",
+            f"seam={_fmt(r['seam_ratio'], '.2f')} speed={r['mean_speed_m_s']:.3f}{_training_passing(r)}",
             file=out,
         )
     width = max([len(s.name) for s in songs] + [4])
@@ -129,7 +131,7 @@ def run_benchmark(
     results: list[SongResult] = []
     for k, (song, song_style) in enumerate(dances, 1):
         print(f"[{k}/{len(dances)}] {song.name} (style {song_style})", file=sys.stderr, flush=True)
-        result = SongResult(song.name, song_style)
+        result = SongResult(song.name, song_style, reference=Reference.for_style(reference, song_style, given_speed))
         try:
             if song_style not in plans:
                 plans[song_style] = generator.resolve_style(song_style)
@@ -153,8 +155,8 @@ def run_benchmark(
             boundaries = window_boundaries(len(joints), window, stride)
             result.figures = dance_figures(joints, music_beats=beats, boundaries=boundaries, floor_m=floor)
             result.raw = dance_figures(raw_joints, music_beats=beats, boundaries=boundaries, floor_m=floor)
-            result.checks = result.figures.checks(train_speed)
-            result.raw_checks = result.raw.checks(train_speed)
+            result.checks = result.figures.checks(result.reference)
+            result.raw_checks = result.raw.checks(result.reference)
             moved = np.linalg.norm(joints - raw_joints, axis=-1)
             result.finishing = {
                 **dance.finishing[0], "moved_mean_cm": 100 * float(moved.mean()), "moved_max_cm": 100 * float(moved.max())
@@ -195,6 +197,9 @@ def run_benchmark(
                 "floating_height_m": FLOATING_HEIGHT_M,
                 "seam_ratio_below": SEAM_RATIO_MAX,
                 "speed_ratio_within": list(SPEED_RATIO_RANGE),
+                "genre_stretch": "a dance asked for in a genre of the training data also passes the speed target "
+                "within 30% of its genre's mean speed, and its p999 limit is multiplied by its genre's p999 over "
+                "all the training data's where that is above 1 (each song's 'limits')",
                 "bas_variants_sigma_frames": {k: list(v) for k, v in BAS_VARIANTS.items()},
                 "model_beat_fraction_at_least": MODEL_BEAT_FRACTION,
             },
@@ -212,7 +217,11 @@ def run_benchmark(
                     "speed_ratio": None
                     if r.figures is None or math.isnan(train_speed)
                     else r.figures.mean_speed_m_s / train_speed,
+                    "limits": None if r.reference is None else _limits(r.reference),
                     "checks": r.checks,
+                    "checks_unstretched": None
+                    if r.figures is None or r.reference is None
+                    else r.figures.checks(r.reference.overall),
                     "raw_checks": r.raw_checks,
                     "passed": r.passed,
                     "tempo": None if r.tempo is None else {**asdict(r.tempo), "given_bpm": r.tempo.given_bpm},
@@ -227,6 +236,19 @@ def run_benchmark(
         }
         atomic_write_text(json_path, json.dumps(_no_nan(payload), indent=2, allow_nan=False) + "\n")
     return results
+
+
+def _limits(reference: Reference) -> dict[str, Any]:
+    """A dance's speed limits for the JSON."""
+    return {"p999_speed_m_s_below": reference.p999_limit(), "speed_m_s_within": list(reference.speed_range())}
+
+
+def _training_passing(figures: dict[str, Any]) -> str:
+    """The training data line's count of its own dances within the speed targets (nothing for an older cache)."""
+    plain, stretched, n = training_dances_passing(figures)
+    if not n:
+        return ""
+    return f"; its dances within the speed and p999 targets: {plain}/{n}, {stretched}/{n} stretched for their genre"
 
 
 def _tempo_setting(tempi: tuple[tuple[float, float] | None, str]) -> str:
