@@ -28,6 +28,7 @@ FLOATING_MAX_FRACTION = 0.10  # fraction of frames with the lowest foot joint > 
 FLOATING_HEIGHT_M = 0.10
 SEAM_RATIO_MAX = 1.3  # speed around window boundaries / speed around any frame
 SPEED_RATIO_RANGE = (0.7, 1.3)  # mean joint speed within 30% of the training data's
+STILL_RATIO = 0.5  # a dance slower than this times the training data's mean speed does not move: it fails
 # the targets, in the order they are checked; "bas" and "bas_edge": above the half-beat-shifted copy
 CHECK_NAMES = ("p999", "penetration", "floating", "seam", "speed", "bas", "bas_edge")
 SEAM_HALF_WIDTH_FRAMES = 2
@@ -200,9 +201,9 @@ class Reference:
     (:data:`SPEED_RATIO_RANGE`) and a p99.9 below 8 m/s (:data:`P999_SPEED_MAX_M_S`). Some genres' own training
     dances lie beyond them (on the synthetic data JB and JS move 1.50 and 1.42 times the mean speed, JS with a p99.9
     of 8.09 m/s; MH, PO and WA 0.65-0.67 times), and a dance that moved as they do would fail. So a dance asked for
-    in a genre also passes within 30% of that genre's mean speed, and its p99.9 limit is 8 m/s times the genre's
-    p99.9 over all the training data's where that factor is above 1: a target is stretched for a genre, never
-    tightened."""
+    in a genre also passes within 30% of that genre's mean speed (but never below half the mean speed of all,
+    :data:`STILL_RATIO`: such a dance does not move), and its p99.9 limit is 8 m/s times the genre's p99.9 over all
+    the training data's where that factor is above 1: a target is stretched for a genre, never tightened."""
 
     speed_m_s: float
     p999_m_s: float = math.nan
@@ -231,7 +232,7 @@ class Reference:
         """The mean joint speeds (m/s) that pass; NaN (nothing passes) without the training data's speed."""
         low, high = (r * self.speed_m_s for r in SPEED_RATIO_RANGE)
         if self.genre_speed_m_s > 0 and not math.isnan(self.speed_m_s):
-            low = min(low, SPEED_RATIO_RANGE[0] * self.genre_speed_m_s)
+            low = max(min(low, SPEED_RATIO_RANGE[0] * self.genre_speed_m_s), STILL_RATIO * self.speed_m_s)
             high = max(high, SPEED_RATIO_RANGE[1] * self.genre_speed_m_s)
         return low, high
 
