@@ -273,13 +273,23 @@ def test_all_styles_dances_every_song_in_every_genre():
         rs.style_plan(songs, [None], None, all_styles=True)
 
 
+def test_a_style_names_its_genre_by_code_or_name():
+    from dgsdp.style.vocab import AISTPP_GENRES
+
+    for style in ("KR", "gKR", "krump", "Krump"):
+        assert rs.genre_of(style, AISTPP_GENRES) == "KR"
+    assert rs.genre_of("Middle Hip-hop", AISTPP_GENRES) == "MH"
+    for style in ("text: krump", "sharp, powerful krump with chest pops", "KR:0-10,JS:10-20", None):
+        assert rs.genre_of(style, AISTPP_GENRES) is None
+    assert rs.genre_of("KR", None) is None  # a model without genres
+
+
 def test_genre_speed_and_tempo_lines():
     from dgsdp.audio.tempo import TempoFold
 
     def result(name: str, style: str, speed: float, raw_speed: float, error: str | None = None) -> rs.SongResult:
-        r = rs.SongResult(
-            name, style, error=error, tempo=TempoFold(160.0, 1, (80.0, 135.0)) if "fast" in name else None
-        )
+        tempo = TempoFold(160.0, 1, (80.0, 135.0)) if "fast" in name else None
+        r = rs.SongResult(name, style, error=error, tempo=tempo, genre=style)
         if error is None:
             r.figures = rs.SongFigures(10.0, 3.0, 0.0, 0.0, 1.0, speed, 0.5, 0.2, 0.5, 0.2, 8, 20, 3, [0.4] * 8)
             r.raw = rs.SongFigures(10.0, 3.0, 0.0, 0.0, 1.0, raw_speed, 0.5, 0.2, 0.5, 0.2, 8, 20, 3, [0.4] * 8)
@@ -295,6 +305,9 @@ def test_genre_speed_and_tempo_lines():
     ]
     assert rs.genre_speed_line(results, by_genre).endswith("finished=2/3 raw=1/3")
     assert rs.genre_speed_line(results, None).endswith("finished=0/0 raw=0/0")
+    results[0].genre = None  # a free-text style has no genre's speed to compare with
+    assert rs.genre_speed_line(results, by_genre).endswith("finished=1/2 raw=1/2")
+    results[0].genre = "PO"
     assert rs.tempo_line(results) == (
         "tempo folds (training tempi 80-135 BPM; song BPM -> BPM given): 1 of 5 songs: fast.wav 160.0->80.0"
     )
@@ -325,7 +338,7 @@ def test_raw_summary_holds_the_model_to_its_beat_target():
 
 def test_style_summary_counts_each_targets_misses_per_style():
     def result(style: str, p999: float, bas: float, error: str | None = None) -> rs.SongResult:
-        r = rs.SongResult("x.wav", style, error=error)
+        r = rs.SongResult("x.wav", style, error=error, genre=style)
         if error is None:
             r.figures = rs.SongFigures(10.0, p999, 0.0, 0.0, 1.0, 0.4, bas, 0.25, bas, 0.25, 8, 20, 3, [0.4] * 8)
             r.checks = r.figures.checks(rs.Reference(0.4))

@@ -72,10 +72,20 @@ class SongResult:
     raw_checks: dict[str, bool] = field(default_factory=dict)
     tempo: TempoFold | None = None  # the song's tempo and how its beats were given to the model
     reference: Reference | None = None  # what the speed targets measured it against
+    genre: str | None = None  # the genre code the style names (KR for "krump"); None for free text or a schedule
 
     @property
     def passed(self) -> bool:
         return self.error is None and all(self.checks.values())
+
+
+def genre_of(style: str | None, vocab: Any) -> str | None:
+    """The code of the genre a style names in ``vocab`` (a :class:`~dgsdp.style.vocab.GenreVocab`, or None for a
+    model without genres): "KR" for "krump", "KR" or "gKR"; None for free text ("text: krump", a description) or a
+    schedule."""
+    if vocab is None or style is None or str(style) not in vocab:
+        return None
+    return vocab.code(str(style))
 
 
 def _fmt(value: float, spec: str) -> str:
@@ -239,7 +249,7 @@ def style_summary_lines(
             + " ".join(f"{name}_missed={n}" for name, n in missed.items())
             + f" worst_p999={_fmt(max(p999) if p999 else math.nan, '.3f')}"
         )
-        genre = (by_genre or {}).get(str(style))
+        genre = (by_genre or {}).get(str(mine[0].genre))
         if genre is not None:
             speed = float(genre["mean_speed_m_s"])
             final = [_ratio(r.figures.mean_speed_m_s, speed) for r in done]
@@ -257,14 +267,14 @@ def genre_speed_line(results: Sequence[SongResult], by_genre: Mapping[str, Mappi
     """How many dances move within 30% of their own genre's training dances' mean speed (finished and raw): reported
     beside the targets, not one of them (the speed target also passes a dance within 30% of all the training
     data's speed, :class:`Reference`)."""
-    done = [r for r in results if r.error is None and (by_genre or {}).get(str(r.style)) is not None]
+    done = [r for r in results if r.error is None and (by_genre or {}).get(str(r.genre)) is not None]
 
     def within(figures: Any, genre: str) -> bool:
         ratio = _ratio(figures.mean_speed_m_s, float(by_genre[genre]["mean_speed_m_s"]))  # type: ignore[index]
         return SPEED_RATIO_RANGE[0] <= ratio <= SPEED_RATIO_RANGE[1]
 
-    final = sum(within(r.figures, str(r.style)) for r in done)
-    raw = sum(within(r.raw, str(r.style)) for r in done)
+    final = sum(within(r.figures, str(r.genre)) for r in done)
+    raw = sum(within(r.raw, str(r.genre)) for r in done)
     return (
         f"genre speed (reported, not a target): within 30% of the asked genre's training dances "
         f"finished={final}/{len(done)} raw={raw}/{len(done)}"

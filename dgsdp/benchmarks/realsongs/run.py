@@ -34,6 +34,7 @@ from dgsdp.benchmarks.realsongs.report import (
     SongResult,
     _fmt,
     format_row,
+    genre_of,
     genre_speed_line,
     header,
     raw_summary,
@@ -98,8 +99,9 @@ def run_benchmark(
         train_source = "--train-speed"
     train_speed = Reference.for_style(reference, None, given_speed).speed_m_s
     genres: list[str | None] = [None]
-    if generator.style_dim:
-        genres = list(generator.embedder().vocab.codes)
+    vocab = generator.embedder().vocab if generator.style_dim else None
+    if vocab is not None:
+        genres = list(vocab.codes)
     dances = style_plan(songs, genres, None if style is None else str(style), all_styles)
     plans: dict[str | None, Any] = {}
     first: dict[Path, tuple[Path, str | None]] = {}
@@ -131,7 +133,10 @@ def run_benchmark(
     results: list[SongResult] = []
     for k, (song, song_style) in enumerate(dances, 1):
         print(f"[{k}/{len(dances)}] {song.name} (style {song_style})", file=sys.stderr, flush=True)
-        result = SongResult(song.name, song_style, reference=Reference.for_style(reference, song_style, given_speed))
+        genre = genre_of(song_style, vocab)
+        result = SongResult(
+            song.name, song_style, genre=genre, reference=Reference.for_style(reference, genre, given_speed)
+        )
         try:
             if song_style not in plans:
                 plans[song_style] = generator.resolve_style(song_style)
