@@ -187,11 +187,12 @@ def test_speed_targets_stretch_for_a_genre_beyond_them_and_never_tighten():
         "by_genre": {"JS": {"mean_speed_m_s": 0.7, "p999_speed_m_s": 8.125}, "MH": {"mean_speed_m_s": 0.4,
                                                                                 "p999_speed_m_s": 2.0}},
     }  # fmt: skip
-    plain = rs.Reference.for_style(figures, "sharp krump with chest pops")  # no genre: every dance's targets
+    plain = rs.Reference.for_genre(figures, None)  # a style that names no genre: every dance's targets
+    assert rs.Reference.for_genre(figures, "BR") == plain  # a genre without training dances: the same
     assert plain.speed_range() == pytest.approx((0.35, 0.65)) and plain.p999_limit() == 8.0
-    fast = rs.Reference.for_style(figures, "JS")
+    fast = rs.Reference.for_genre(figures, "JS")
     assert fast.speed_range() == pytest.approx((0.35, 0.91)) and fast.p999_limit() == pytest.approx(10.0)
-    slow = rs.Reference.for_style(figures, "MH")
+    slow = rs.Reference.for_genre(figures, "MH")
     assert slow.speed_range() == pytest.approx((0.28, 0.65)) and slow.p999_limit() == 8.0  # not tightened
     assert fast.overall.speed_range() == plain.speed_range() and fast.overall.p999_limit() == 8.0
     # a JS dance moving as its genre's training dances do fails every dance's targets and passes its genre's
@@ -206,12 +207,12 @@ def test_speed_targets_stretch_for_a_genre_beyond_them_and_never_tighten():
     one = rs.dance_figures(joints, music_beats=np.arange(20, 300, 20), boundaries=[75, 150, 225])
     genre = {"mean_speed_m_s": one.mean_speed_m_s / 1.2, "p999_speed_m_s": 1.0}
     slow_data = {"mean_speed_m_s": one.mean_speed_m_s / 1.5, "p999_speed_m_s": 6.5, "by_genre": {"JS": genre}}
-    assert one.checks(rs.Reference.for_style(slow_data, "JS"))["speed"]
-    assert not one.checks(rs.Reference.for_style(slow_data, "BR"))["speed"]
+    assert one.checks(rs.Reference.for_genre(slow_data, "JS"))["speed"]
+    assert not one.checks(rs.Reference.for_genre(slow_data, "BR"))["speed"]
     # --train-speed replaces the training data's mean; without the training data no speed passes, the p99.9 limit
     # stays 8 m/s
-    assert rs.Reference.for_style(figures, "MH", 0.45).speed_range() == pytest.approx((0.28, 0.585))
-    assert rs.Reference.for_style(None, "JS").passes(0.5, 7.9) == (True, False)
+    assert rs.Reference.for_genre(figures, "MH", 0.45).speed_range() == pytest.approx((0.28, 0.585))
+    assert rs.Reference.for_genre(None, "JS").passes(0.5, 7.9) == (True, False)
     # the training dances against the targets: as set, and stretched for their genre
     figures["dances"] = [
         {"genre": "JS", "mean_speed_m_s": 0.8, "p999_speed_m_s": 9.5},  # passes stretched only
@@ -223,7 +224,7 @@ def test_speed_targets_stretch_for_a_genre_beyond_them_and_never_tighten():
     assert rs.training_dances_passing({"mean_speed_m_s": 0.5}) == (0, 0, 0)  # a cache without the dances
     # a genre slower still: its band stops at half the speed of all (a dance that slow does not move)
     figures["by_genre"]["MH"]["mean_speed_m_s"] = 0.2
-    assert rs.Reference.for_style(figures, "MH").speed_range() == pytest.approx((0.25, 0.65))
+    assert rs.Reference.for_genre(figures, "MH").speed_range() == pytest.approx((0.25, 0.65))
 
 
 def test_training_figures_without_the_training_data(tmp_path):
@@ -508,7 +509,8 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     assert any(line.startswith("training data (2 dances") and line.endswith(counted) for line in printed)
     # each dance's speed limits, from its genre's figures; the summary counts the passes that needed them
     for song in data["songs"]:
-        expected = rs.Reference.for_style(reference, song["style"])
+        assert song["genre"] == song["style"]  # the default run gives each dance a genre by its code
+        expected = rs.Reference.for_genre(reference, song["genre"])
         assert song["limits"]["p999_speed_m_s_below"] == pytest.approx(expected.p999_limit())
         assert song["limits"]["speed_m_s_within"] == pytest.approx(list(expected.speed_range()))
     needed = sum(s["passed"] and not all(s["checks_unstretched"].values()) for s in data["songs"] if s["figures"])

@@ -211,16 +211,17 @@ class Reference:
     genre_p999_m_s: float = math.nan
 
     @classmethod
-    def for_style(cls, figures: dict[str, Any] | None, style: str | None, speed_m_s: float | None = None) -> Reference:
-        """The reference of a dance in ``style`` from :func:`training_figures`' ``figures`` (None without the
-        training data); ``speed_m_s`` replaces their mean speed (``--train-speed``)."""
+    def for_genre(cls, figures: dict[str, Any] | None, genre: str | None, speed_m_s: float | None = None) -> Reference:
+        """The reference of a dance asked for in ``genre`` (a genre code of the training data, or None for a style
+        that names no genre) from :func:`training_figures`' ``figures`` (None without the training data);
+        ``speed_m_s`` replaces their mean speed (``--train-speed``)."""
         figures = figures or {}
-        genre = (figures.get("by_genre") or {}).get(str(style)) or {}
+        own = (figures.get("by_genre") or {}).get(genre) or {} if genre is not None else {}
         return cls(
             float(figures.get("mean_speed_m_s", math.nan)) if speed_m_s is None else float(speed_m_s),
             float(figures.get("p999_speed_m_s", math.nan)),
-            float(genre.get("mean_speed_m_s", math.nan)),
-            float(genre.get("p999_speed_m_s", math.nan)),
+            float(own.get("mean_speed_m_s", math.nan)),
+            float(own.get("p999_speed_m_s", math.nan)),
         )
 
     @property
@@ -434,7 +435,7 @@ def training_dances_passing(figures: dict[str, Any]) -> tuple[int, int, int]:
     dances = figures.get("dances") or []
     plain = stretched = 0
     for dance in dances:
-        reference = Reference.for_style(figures, dance["genre"])
+        reference = Reference.for_genre(figures, dance["genre"])
         speeds = (dance["mean_speed_m_s"], dance["p999_speed_m_s"])
         plain += all(reference.overall.passes(*speeds))
         stretched += all(reference.passes(*speeds))

@@ -97,7 +97,7 @@ def run_benchmark(
     given_speed = train_speed  # --train-speed replaces the training data's mean speed
     if given_speed is not None:
         train_source = "--train-speed"
-    train_speed = Reference.for_style(reference, None, given_speed).speed_m_s
+    train_speed = Reference.for_genre(reference, None, given_speed).speed_m_s
     genres: list[str | None] = [None]
     vocab = generator.embedder().vocab if generator.style_dim else None
     if vocab is not None:
@@ -135,7 +135,7 @@ def run_benchmark(
         print(f"[{k}/{len(dances)}] {song.name} (style {song_style})", file=sys.stderr, flush=True)
         genre = genre_of(song_style, vocab)
         result = SongResult(
-            song.name, song_style, genre=genre, reference=Reference.for_style(reference, genre, given_speed)
+            song.name, song_style, genre=genre, reference=Reference.for_genre(reference, genre, given_speed)
         )
         try:
             if song_style not in plans:
@@ -213,6 +213,7 @@ def run_benchmark(
                 {
                     "name": r.name,
                     "style": r.style,
+                    "genre": r.genre,
                     "error": r.error,
                     "feature_seconds": r.feature_seconds,
                     "dance_seconds": r.dance_seconds,
