@@ -7,8 +7,11 @@ import math
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+
+from dgsdp.errors import ConfigError
 
 GENRE_CODES = ("BR", "PO", "LO", "MH", "LH", "HO", "WA", "KR", "JS", "JB")
 
@@ -48,6 +51,24 @@ def training_tempo_range(
         return None
     lo_rate, hi_rate = rates if rates is not None else (1.0, 1.0)
     return min(tempi) * float(lo_rate), max(tempi) * float(hi_rate)
+
+
+def check_tempo_range(value: Any, where: str, *, unknown: bool = True) -> tuple[float, float]:
+    """A tempo range (lowest, highest BPM, a list or a tensor) as two floats with 0 < lowest <= highest, or one
+    ConfigError naming ``where``. With ``unknown``, None or two NaNs (a range not recorded) give (nan, nan)."""
+    if value is None and unknown:
+        return math.nan, math.nan
+    bad = ConfigError(f"{where} must be [lowest, highest] BPM with 0 < lowest <= highest, got {value!r}")
+    values = value.tolist() if hasattr(value, "tolist") else value
+    try:
+        lo, hi = (float(v) for v in values)
+    except (TypeError, ValueError):
+        raise bad from None
+    if unknown and math.isnan(lo) and math.isnan(hi):
+        return math.nan, math.nan
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+        raise bad
+    return lo, hi
 
 
 def beats_tempo_bpm(beats: np.ndarray, fps: float) -> float:

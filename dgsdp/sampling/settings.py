@@ -3,7 +3,6 @@ benchmarks (one dataclass, also the config group's schema)."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -95,17 +94,11 @@ class SamplingSettings:
                 f"{', '.join(ROTATION_PROJECTION_CHOICES)}"
             )
         if self.tempo_range_bpm is not None:
-            values = list(self.tempo_range_bpm)
-            if (
-                len(values) != 2
-                or not all(isinstance(v, int | float) and math.isfinite(v) for v in values)
-                or not (0 < values[0] <= values[1])
-            ):
-                raise ConfigError(
-                    f"sampling.tempo_range_bpm must be [lowest, highest] BPM with 0 < lowest <= highest, or null (the "
-                    f"checkpoint's), got {self.tempo_range_bpm}"
-                )
-            self.tempo_range_bpm = [float(v) for v in values]
+            from dgsdp.audio.tempo import check_tempo_range
+
+            self.tempo_range_bpm = list(
+                check_tempo_range(self.tempo_range_bpm, "sampling.tempo_range_bpm", unknown=False)
+            )
         if self.clip_x0 is not None and not float(self.clip_x0) > 0:
             raise ConfigError(f"sampling.clip_x0 must be a positive bound or null (the run's own), got {self.clip_x0}")
         if int(self.chunk_size) < 0:

@@ -20,6 +20,7 @@ import torch
 from torch import nn
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
+from dgsdp.audio.tempo import check_tempo_range
 from dgsdp.errors import CheckpointError, ConfigError
 from dgsdp.motion import POSE_DIM, MinMaxNormalizer
 from dgsdp.registry import Source
@@ -131,23 +132,6 @@ def check_floor_height(value: Any, where: str) -> float:
     if abs(value) > MAX_FLOOR_M:
         raise ConfigError(f"{where} is {value} m; a floor more than {MAX_FLOOR_M:g} m from z = 0 is not a dance floor")
     return float(value)
-
-
-def check_tempo_range(value: Any, where: str) -> tuple[float, float]:
-    """A tempo range as (lo, hi) BPM with 0 < lo <= hi, (nan, nan) for None or two NaNs (not recorded), or a
-    ConfigError."""
-    if value is None:
-        return math.nan, math.nan
-    values = value.tolist() if torch.is_tensor(value) else value
-    try:
-        lo, hi = (float(v) for v in values)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{where} must be two tempi [lowest, highest] in BPM, got {value!r}") from None
-    if math.isnan(lo) and math.isnan(hi):
-        return math.nan, math.nan
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
-        raise ConfigError(f"{where} must be two tempi [lowest, highest] with 0 < lowest <= highest, got {value!r}")
-    return lo, hi
 
 
 def _default_tempo_range(module: torch.nn.Module, state: dict[str, Any], prefix: str, *args: Any) -> None:

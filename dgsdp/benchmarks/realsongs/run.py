@@ -170,7 +170,8 @@ def run_benchmark(
             result.error = str(e).replace("\n", " ")
         results.append(result)
         print(format_row(result, train_speed, width), file=out, flush=True)
-    print(summary_line(results, train_speed), file=out, flush=True)
+    summary = summary_line(results, train_speed)
+    print(summary, file=out, flush=True)
     by_genre = None if reference is None else reference.get("by_genre")
     style_lines = style_summary_lines(results, by_genre) if all_styles else []
     if style_lines:
@@ -179,7 +180,8 @@ def run_benchmark(
     print(raw_line, file=out, flush=True)
     genre_line = genre_speed_line(results, by_genre)
     print(genre_line, file=out, flush=True)
-    print(tempo_line(results), file=out, flush=True)
+    tempo_summary = tempo_line(results)
+    print(tempo_summary, file=out, flush=True)
     if json_path is not None:
         from dgsdp.utils.io import atomic_write_text
 
@@ -203,8 +205,9 @@ def run_benchmark(
                 "seam_ratio_below": SEAM_RATIO_MAX,
                 "speed_ratio_within": list(SPEED_RATIO_RANGE),
                 "genre_stretch": "a dance asked for in a genre of the training data also passes the speed target "
-                "within 30% of its genre's mean speed, and its p999 limit is multiplied by its genre's p999 over "
-                "all the training data's where that is above 1 (each song's 'limits')",
+                "within 30% of its genre's mean speed (never below half the mean speed of all), and its p999 limit "
+                "is multiplied by its genre's p999 over all the training data's where that is above 1 (each song's "
+                "'limits')",
                 "bas_variants_sigma_frames": {k: list(v) for k, v in BAS_VARIANTS.items()},
                 "model_beat_fraction_at_least": MODEL_BEAT_FRACTION,
             },
@@ -234,11 +237,11 @@ def run_benchmark(
                 }
                 for r in results
             ],
-            "summary": summary_line(results, train_speed),
+            "summary": summary,
             "style_summaries": style_lines,
             "raw_summary": raw_line,
             "genre_speed_summary": genre_line,
-            "tempo_summary": tempo_line(results),
+            "tempo_summary": tempo_summary,
         }
         atomic_write_text(json_path, json.dumps(_no_nan(payload), indent=2, allow_nan=False) + "\n")
     return results
