@@ -102,6 +102,7 @@ def generate_settings(cfg: DictConfig) -> GenerateSettings:
         finishing=finishing_settings(cfg.get("finishing")),
         seconds=None if cfg.seconds is None else float(cfg.seconds),
         blend_seconds=float(cfg.schedule_blend_seconds),
+        style_text_temperature=None if cfg.get("style_text_temperature") is None else float(cfg.style_text_temperature),
         num_samples=int(cfg.num_samples),
         seed=int(cfg.seed),
         progress=bool(cfg.progress),

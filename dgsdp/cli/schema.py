@@ -30,6 +30,7 @@ class DenoiserConfig:
     cross_attention_rotary: bool = True
     null_music: str = "input"
     aligned_music: bool = False
+    style_film: bool = False
     guidance_inputs: int = 0
     gradient_checkpointing: bool = False
     ema_decay: float = 0.9999

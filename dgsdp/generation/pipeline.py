@@ -89,6 +89,15 @@ class StylePlan:
     spans: list[Any] | None = None
 
 
+def read_through_bank(vector: torch.Tensor, bank: torch.Tensor, temperature: float) -> torch.Tensor:
+    """A free-text style vector (ds,) read through the training descriptions it resembles: the mean of the bank's
+    rows (P, ds) weighted by the softmax of their cosine similarity to it over ``temperature``. A model has only
+    learnt what its training descriptions' embeddings ask for; text unlike any of them lies where it has learnt
+    nothing, and this keeps it among them (small temperature: the nearest description)."""
+    sims = torch.nn.functional.cosine_similarity(bank, vector[None, :], dim=-1)  # (P,)
+    return torch.softmax(sims / temperature, dim=0) @ bank
+
+
 class DanceGenerator:
     """A trained model with its audio encoder and style embedder, ready to dance to whole songs.
 
@@ -103,6 +112,7 @@ class DanceGenerator:
         device: torch.device | str = "cpu",
         max_song_seconds: float | None = None,
         trusted: bool = False,
+        text_temperature: float | None = None,
     ) -> None:
         self.model = model.to(device).eval()
         self.device = torch.device(device)
@@ -117,6 +127,10 @@ class DanceGenerator:
         self._audio: AudioEncoder | None = None
         self._embedder: Any = None
         self._warned_tempo = False
+        if text_temperature is not None and not float(text_temperature) > 0:
+            raise ConfigError(f"style_text_temperature must be a positive number or null, got {text_temperature}")
+        # free text read through the training descriptions it resembles (see embed_style); None: its own embedding
+        self.text_temperature = None if text_temperature is None else float(text_temperature)
 
     @classmethod
     def from_checkpoint(
@@ -126,6 +140,7 @@ class DanceGenerator:
         cache_dir: str | os.PathLike | None = None,
         device: str = "cpu",
         max_song_seconds: float | None = None,
+        text_temperature: float | None = None,
     ) -> DanceGenerator:
         """The model of a checkpoint written by train.py (or the EDGE import), read as data. ``cache_dir``: where
         music features are cached (default: ``data/cache`` of the working folder, as the command-line tools)."""
@@ -136,6 +151,7 @@ class DanceGenerator:
             cache_dir=cache_dir,
             device=resolve_device(device),
             max_song_seconds=max_song_seconds,
+            text_temperature=text_temperature,
         )
 
     @property
@@ -267,7 +283,10 @@ class DanceGenerator:
         bank = self.model.style_bank
         if bank is not None and text in embedder.vocab:
             return bank.mean_for(torch.tensor([embedder.vocab.index(text)], device=bank.vectors.device))[0].cpu()
-        return embedder.embed_text(text).float().cpu()
+        vector = embedder.embed_text(text).float().cpu()
+        if self.text_temperature is not None and bank is not None and len(bank) > 1 and embedder.kind == "prompt":
+            vector = read_through_bank(vector, bank.vectors.float().cpu(), self.text_temperature)
+        return vector
 
     def resolve_style(self, style: str | None) -> StylePlan:
         """Check and embed a style string once (before any song): genre, free text or schedule."""

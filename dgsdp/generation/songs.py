@@ -65,6 +65,7 @@ class GenerateSettings:
     finishing: Finishing = field(default_factory=Finishing)
     seconds: float | None = None
     blend_seconds: float = 2.0
+    style_text_temperature: float | None = None
     num_samples: int = 1
     seed: int = 0
     progress: bool = False
@@ -94,7 +95,7 @@ class SongDancer:
     def from_settings(cls, settings: GenerateSettings) -> SongDancer:
         generator = DanceGenerator.from_checkpoint(
             settings.checkpoint, cache_dir=settings.cache_dir, device=settings.device,
-            max_song_seconds=settings.max_song_seconds,
+            max_song_seconds=settings.max_song_seconds, text_temperature=settings.style_text_temperature,
         )  # fmt: skip
         edit = settings.edit
         if edit.motion is None and edit.motion_file:  # read once, before any song (one clear error for a bad file)

@@ -164,6 +164,7 @@ class DanceDenoiser(nn.Module):
         cross_attention_rotary: bool = True,
         null_music: str = "input",
         aligned_music: bool = False,
+        style_film: bool = False,
         guidance_inputs: int = 0,
         gradient_checkpointing: bool = False,
     ) -> None:
@@ -198,6 +199,9 @@ class DanceDenoiser(nn.Module):
         self.null_music_hidden = nn.Parameter(torch.randn(1, d_model) * 0.02) if null_music == "output" else None
         self.style_concat_proj = nn.Linear(style_dim, d_model, bias=False) if self.use_concat else None
         self.null_style = nn.Parameter(torch.zeros(style_dim)) if style_dim else None
+        # style in every FiLM too (in neither paper): the style's projection joins the diffusion step's condition,
+        # which scales and shifts every sub-block of every decoder layer
+        self.style_film_proj = nn.Linear(style_dim, d_model) if style_dim and style_film else None
         self.music_encoder = nn.Sequential(
             *(
                 EncoderLayer(d_model, n_heads, ff_dim, dropout, rotary_placement=rotary_placement)
@@ -415,7 +419,7 @@ class DanceDenoiser(nn.Module):
         keep_music = self._keep(keep_music, b, x_t.device)
         keep_style = self._keep(keep_style, b, x_t.device)
         tokens, pooled, s = self._music(music, style, keep_music, keep_style, n)
-        t_cond = t_cond + pooled
+        t_cond = self._with_style_film(t_cond + pooled, s)
         memory = self.memory_norm(torch.cat((tokens, t_tokens), dim=1))
 
         h = self._input(x_t)
@@ -452,6 +456,14 @@ class DanceDenoiser(nn.Module):
         with torch.autocast(h.device.type, enabled=False):
             return self.output_proj(h.float())
 
+    def _with_style_film(self, t_cond: torch.Tensor, s: torch.Tensor | None) -> torch.Tensor:
+        """The FiLM condition (B, d), plus the projected style with ``style_film``: (B, d), or (B, T, d) for a style
+        per frame (a schedule)."""
+        if self.style_film_proj is None or s is None:
+            return t_cond
+        h_style = self.style_film_proj(s.to(t_cond.dtype))
+        return t_cond + h_style if h_style.ndim == 2 else t_cond[:, None, :] + h_style
+
     def _modulation(self, i: int) -> StyleModulation | None:
         return None if self.modulations is None else self.modulations[min(i, len(self.modulations) - 1)]
 
@@ -463,7 +475,7 @@ class DanceDenoiser(nn.Module):
             raise ValueError(
                 f"the conditioning is for {cond.batch_size} rows of {cond.n_frames} frames, not ({b}, {n})"
             )
-        t_cond = t_cond + cond.pooled
+        t_cond = self._with_style_film(t_cond + cond.pooled, cond.style)
         t_memory = self.memory_norm(t_tokens)
         h = self._input(x_t)
         if cond.aligned is not None:

@@ -226,8 +226,10 @@ class FiLM(nn.Module):
         self.proj = nn.Sequential(nn.Mish(), nn.Linear(d_model, 2 * d_model))
 
     def forward(self, h: torch.Tensor, cond: torch.Tensor, factor: float = 1.0) -> torch.Tensor:
-        """h (B, T, d), cond (B, d) -> FiLM of ``h * factor`` (a dropout's scale, see :func:`dropout_mask`)."""
-        scale, shift = self.proj(cond).unsqueeze(1).chunk(2, dim=-1)
+        """h (B, T, d), cond (B, d) or per frame (B, T, d) -> FiLM of ``h * factor`` (a dropout's scale, see
+        :func:`dropout_mask`)."""
+        params = self.proj(cond)
+        scale, shift = (params if params.ndim == 3 else params.unsqueeze(1)).chunk(2, dim=-1)
         return torch.addcmul(shift, h, (1 + scale) * factor)
 
 

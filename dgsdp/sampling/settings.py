@@ -28,6 +28,10 @@ class GuidanceSettings:
     style: float = 1.0  # only used by models trained with style dropout (diffusion.style_drop_prob > 0)
     longform_ramp_fraction: float = 0.5  # dances longer than one window: weights rise from 0 over this fraction
     edit_cap_below_t: int = 100  # with an editing mask, weights are capped at 1 below this diffusion step (EDGE)
+    # 0..1: the guided prediction's movement over time scaled back to the conditional prediction's (per channel;
+    # the mean pose kept): guidance then strengthens what the music asks without making every genre move faster
+    # (in neither paper; docs/style.md)
+    rescale: float = 0.0
 
 
 @dataclass
@@ -105,6 +109,8 @@ class SamplingSettings:
             raise ConfigError(f"sampling.chunk_size must be >= 0, got {self.chunk_size}")
         if not 0.0 <= float(self.guidance.longform_ramp_fraction) <= 1.0:
             raise ConfigError("sampling.guidance.longform_ramp_fraction must lie in [0, 1]")
+        if not 0.0 <= float(self.guidance.rescale) <= 1.0:
+            raise ConfigError(f"sampling.guidance.rescale must lie in [0, 1], got {self.guidance.rescale}")
 
     @classmethod
     def from_config(cls, node: Any) -> SamplingSettings:
@@ -131,4 +137,5 @@ class SamplingSettings:
             g.style,
             ramp_fraction=g.longform_ramp_fraction if long else 0.0,
             edit_cap_below_t=g.edit_cap_below_t,
+            rescale=g.rescale,
         )

@@ -1,0 +1,140 @@
+"""The style benchmark (python -m dgsdp.benchmarks.style): its measures on hand-made figures, the held-out
+descriptions kept apart from training, and the command end to end on a tiny prompt-conditioned checkpoint."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from dgsdp.benchmarks import style as sb
+from dgsdp.resources import STYLE_PROMPTS_FILE
+from dgsdp.style.embeddings import load_prompts
+from dgsdp.style.vocab import AISTPP_GENRES
+
+
+def test_confusion_matrix_and_accuracy_by_hand():
+    true, predicted = [0, 0, 1, 2, 2, 2], [0, 1, 1, 2, 0, 2]
+    matrix = sb.confusion_matrix(true, predicted, 3)
+    assert matrix.tolist() == [[1, 1, 0], [0, 1, 0], [1, 0, 2]]
+    assert sb.accuracy(true, predicted) == pytest.approx(4 / 6)
+    assert np.trace(matrix) / matrix.sum() == pytest.approx(sb.accuracy(true, predicted))
+    assert math.isnan(sb.accuracy([], []))
+
+
+def test_speed_ratios_per_genre_and_the_30_percent_band():
+    speeds, genres = [1.0, 3.0, 0.5, 0.7], [0, 0, 1, 1]
+    ratios = sb.speed_ratios(speeds, genres, {0: 2.0, 1: 0.4, 2: 1.0})
+    assert ratios == pytest.approx({0: 1.0, 1: 1.5})  # genre 2 has no dances: no ratio
+    assert sb.within(1.3) and sb.within(0.7) and not sb.within(1.31) and not sb.within(0.69)
+
+
+@pytest.mark.parametrize(
+    "labels, frames",
+    [
+        ([0, 0, 0, 1, 1, 1], 0),  # a clean switch from one window to the next
+        ([0, 0, 2, 1, 1, 1], 5),  # one window of neither genre between them: one grid step
+        ([0, 0, 1, 0, 2, 1, 1], 5),  # settled from the sixth window on, the last 0 is the fourth: one between
+        ([1, 1, 1, 1], None),  # never showed the first genre
+        ([0, 0, 1, 1, 0], None),  # never settled in the second
+    ],
+)
+def test_switch_frames_by_hand(labels, frames):
+    assert sb.switch_frames(labels, 0, 1, grid_frames=5) == frames
+
+
+def test_heldout_descriptions_are_apart_from_training():
+    heldout = load_prompts(sb.HELDOUT_FILE, AISTPP_GENRES)
+    training = load_prompts(STYLE_PROMPTS_FILE, AISTPP_GENRES)
+    assert sb.HELDOUT_FILE.parent != STYLE_PROMPTS_FILE.parent  # nothing that trains reads this folder
+    assert all(len(texts) >= 4 for texts in heldout)
+    training_text = " ".join(t.lower() for texts in training for t in texts)
+    for texts in heldout:
+        for text in texts:
+            assert text.lower() not in training_text
+    # the first two of each genre name it (the report's "naming the genre" split), the others do not
+    names = {code: name.lower() for code, name in zip(AISTPP_GENRES.codes, AISTPP_GENRES.names)}
+    raw = yaml.safe_load(sb.HELDOUT_FILE.read_text())
+    stems = {"BR": ("break", "b-boy"), "PO": ("pop",), "LO": ("lock",), "MH": ("hip hop", "hip-hop"),
+             "LH": ("hip hop", "hip-hop"), "HO": ("house",), "WA": ("waack",), "KR": ("krump",), "JS": ("jazz",),
+             "JB": ("jazz", "ballet")}  # fmt: skip
+
+    def names_it(code: str, text: str) -> bool:
+        return any(stem in text.lower() for stem in stems[code])
+
+    for code, texts in raw.items():
+        assert names[code]  # a genre of the vocabulary
+        assert all(names_it(code, t) for t in texts[:2]), code
+        assert not any(names_it(code, t) for t in texts[2:]), code
+
+
+def test_last_line_means_over_checkpoints():
+    results = [
+        {"genres": list("ab"), "gt_acc": 0.9, "raw": {"genre_acc": 0.5, "text_acc": 0.2, "genre_speed_within": 1}},
+        {"genres": list("ab"), "gt_acc": 0.9, "raw": {"genre_acc": 0.7, "text_acc": 0.4, "genre_speed_within": 2}},
+    ]
+    assert sb.last_line(results) == "style_acc=0.600 text_acc=0.300 genre_speed_within_30pct=1/2 gt_acc=0.900"
+
+
+@pytest.fixture(scope="module")
+def prompt_checkpoint(tmp_path_factory):
+    """A tiny prompt-conditioned model (MiniLM, offline) trained for 2 steps on a small synthetic dataset."""
+    from dgsdp.cli.config import compose_config
+    from dgsdp.cli.train import train
+    from dgsdp.data.synthetic import generate_synthetic_aistpp
+
+    base = tmp_path_factory.mktemp("style_bench")
+    root = generate_synthetic_aistpp(base / "data", seed=0, sequences_per_genre=2, seconds=7.0, num_ignored=0)
+    overrides = [
+        "debug=tiny", f"data.root={root}", "data.synthetic=null", f"paths.cache_dir={base / 'cache'}",
+        "data.progress=false", "logger=none", "~callbacks.progress", "style=prompt", "trainer.max_steps=2",
+        "trainer.limit_val_batches=0",
+    ]  # fmt: skip
+    result = train(compose_config("train", overrides, output_dir=base / "run"))
+    return {"checkpoint": result["checkpoint"], "root": str(root), "cache": str(base / "cache"), "base": base}
+
+
+def test_benchmark_end_to_end(prompt_checkpoint, capsys):
+    run = prompt_checkpoint
+    out = run["base"] / "out"
+    code = sb.main([
+        "--checkpoint", run["checkpoint"], "--data-root", run["root"], "--max-clips", "10", "--no-progress",
+        "--json", str(out / "style.json"), "--png", str(out / "confusion.png"),
+        "device=cpu", "sampling.steps=2", f"paths.cache_dir={run['cache']}",
+    ])  # fmt: skip
+    assert code == 0
+    printed = capsys.readouterr().out.splitlines()
+    data = json.loads((out / "style.json").read_text())[0]
+    assert (out / "confusion.png").stat().st_size > 1000
+    assert data["n_clips"] == 10
+    for name in ("raw", "finished"):
+        figures = data[name]
+        matrix = np.asarray(figures["confusion"])
+        assert matrix.shape == (10, 10) and matrix.sum() == 10
+        assert matrix.sum(axis=1).tolist() == [1] * 10  # --max-clips takes the genres in turn
+        assert figures["genre_acc"] == pytest.approx(np.trace(matrix) / 10)
+        assert 0.0 <= figures["text_acc"] <= 1.0
+        assert figures["genre_speed_within"] == sum(sb.within(r) for r in figures["speed_ratio"].values())
+    schedule = data["schedule"]
+    assert len(schedule["rows"]) == 5 and schedule["span_seconds"] == 10.0  # the 7 s songs looped to 20 s
+    assert {r["first"] for r in schedule["rows"]} == set(AISTPP_GENRES.codes[:5])
+    expected = (
+        f"style_acc={data['raw']['genre_acc']:.3f} text_acc={data['raw']['text_acc']:.3f} "
+        f"genre_speed_within_30pct={data['raw']['genre_speed_within']}/10 gt_acc={data['gt_acc']:.3f}"
+    )
+    assert printed[-1] == expected
+    assert any(line.startswith("confusion matrix, raw") for line in printed)
+
+
+def test_benchmark_refuses_a_model_without_style(tmp_path, capsys):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "generation"))
+    from gen_helpers import train_tiny_checkpoint
+
+    checkpoint = train_tiny_checkpoint(tmp_path, ("style=none",))
+    code = sb.main(["--checkpoint", checkpoint, "--no-progress", "device=cpu", f"paths.cache_dir={tmp_path / 'c'}"])
+    assert code == 2
+    assert "trained without style" in capsys.readouterr().err
