@@ -476,7 +476,7 @@ def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[g
                     sampler = gr.Radio(list(METHODS), value=SamplingSettings.method, label="Sampler")
                     steps = gr.Slider(1, 1000, value=config.default_steps, step=1, label="Steps",
                                       elem_id="steps")  # fmt: skip
-                    seed = gr.Number(value=0, precision=0, label="Seed")
+                    seed = gr.Number(value=0, label="Seed")  # whole numbers: checked by the handler
                     video = gr.Checkbox(value=True, label="Render an mp4 video")
                     cleanup = gr.Checkbox(
                         value=True, label="Finish the dance (on the beat, feet on the floor)", elem_id="cleanup"
