@@ -151,7 +151,7 @@ def _default_floor_height(module: torch.nn.Module, state: dict[str, Any], prefix
 
 def _load_failure(error: Exception, max_chars: int = 200) -> str:
     """What ``torch.load(weights_only=True)`` said, in one short line: the object it refused for a pickled
-    object (torch's own advice to load with ``weights_only=False`` runs the file's code: never given here),
+    object (torch's own advice, to load the file as a full pickle, would run the file's code: never given here),
     else the first line of its message, cut at a word."""
     text = re.sub(r"\x1b\[[0-9;]*m", "", str(error)).strip()
     refused = re.search(r"Unsupported global: GLOBAL (\S+)", text)
