@@ -440,8 +440,9 @@ def _write_mp4(
             )
             assert proc.stdin is not None
             watchdog = _Watchdog(proc, stall_seconds)
+            watchdog.deadline = math.inf  # drawing a frame is our time, not ffmpeg's: only writes can stall
             try:
-                for frame in frames:  # drawing the frame is our time, not ffmpeg's: only the write can stall
+                for frame in frames:
                     watchdog.deadline = time.monotonic() + stall_seconds
                     proc.stdin.write(frame.tobytes())
                     watchdog.deadline = math.inf
