@@ -130,7 +130,7 @@ def check_style_length(text: str, what: str = "the style") -> None:
         raise ConfigError(f"{what} has {len(text)} characters; the limit is {MAX_STYLE_CHARS}: describe it shorter")
 
 
-def finite(value: Any, what: str, integer: bool = False) -> float:
+def finite(value: Any, what: str, integer: bool = False) -> float | int:
     """A field's value as a finite number (ConfigError naming the field for text, NaN or infinity)."""
     try:
         number = float(value)
@@ -650,8 +650,12 @@ def sharing_warning(config: StudioConfig) -> str | None:
         return None
     text = f"warning: --host {config.host} serves the studio to the network: everyone who can reach port {config.port}"
     if not config.auth:
-        return f"{text} can use it, with no login. Add --auth USER:PASSWORD or --auth-file FILE (docs/studio.md)."
-    return f"{text} gets a login page ({len(config.auth)} login(s) set). The connection is not encrypted (http)."
+        text += " can use it, with no login. Add --auth USER:PASSWORD or --auth-file FILE (docs/studio.md)."
+    else:
+        text += f" gets a login page ({len(config.auth)} login(s) set). The connection is not encrypted (http)."
+    if config.allow_checkpoint_paths:
+        text += " With --allow-checkpoint-paths, users can open any .ckpt on this machine."
+    return text
 
 
 def _limit(text: str) -> float | None:

@@ -219,7 +219,9 @@ def test_serving_beyond_this_machine_warns(capsys):
     assert "serves the studio to the network" in open_to_all and "with no login" in open_to_all
     assert "--auth USER:PASSWORD" in open_to_all
     with_login = sharing_warning(parse_args(["--host", "0.0.0.0", "--auth", "alice:secret"]))
-    assert "login page" in with_login and "no login" not in with_login
+    assert "login page" in with_login and "no login" not in with_login and "any .ckpt" not in with_login
+    typed = sharing_warning(parse_args(["--host", "0.0.0.0", "--auth", "a:b", "--allow-checkpoint-paths"]))
+    assert "users can open any .ckpt on this machine" in typed
     for bad in (["--auth", "alice"], ["--auth", ":x"], ["--request-timeout", "0"], ["--keep-runs", "-1"]):
         with pytest.raises(SystemExit):
             parse_args(bad)
