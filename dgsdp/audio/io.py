@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import librosa
@@ -21,13 +22,35 @@ AUDIO_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3", ".m4a")
 """The song files the project looks for in a folder (mp3 and m4a may need ffmpeg)."""
 MAX_PEAK = 1000.0
 """Float files may exceed full scale (1.0) a little; samples past this (60 dB over) mean a broken file."""
+UNKNOWN_FRAMES = 2**63 - 1
+"""libsndfile's frame count for a stream whose header gives no length (a FLAC may leave it out)."""
+BLOCK_FRAMES = 1 << 16
+
+
+def _blocks(f: sf.SoundFile) -> Iterator[np.ndarray]:
+    """An open file of unknown length as (samples, channels) float32 blocks, read until it ends.
+
+    soundfile's ``read`` seeks to its new position after each block, which fails at the end of such a stream,
+    so the blocks come from libsndfile's own read call."""
+    from soundfile import _ffi, _snd  # noqa: PLC2701 - see above
+
+    while True:
+        block = np.empty((BLOCK_FRAMES, f.channels), dtype=np.float32)
+        n = int(_snd.sf_readf_float(f._file, _ffi.cast("float *", _ffi.from_buffer(block)), BLOCK_FRAMES))
+        if n <= 0:
+            return
+        yield block[:n]
 
 
 def _read_native(path: Path) -> tuple[np.ndarray, int]:
     """Decode ``path`` at its own rate; returns ((channels, samples) float32, rate_hz)."""
     try:
-        data, rate_hz = sf.read(str(path), dtype="float32", always_2d=True)
-        return np.ascontiguousarray(data.T), int(rate_hz)
+        with sf.SoundFile(str(path)) as f:
+            if f.frames >= UNKNOWN_FRAMES:
+                data = np.concatenate([np.zeros((0, f.channels), np.float32), *_blocks(f)])
+            else:
+                data = f.read(dtype="float32", always_2d=True)
+            return np.ascontiguousarray(data.T), int(f.samplerate)
     except (sf.LibsndfileError, RuntimeError, TypeError, ValueError):
         pass
     try:
@@ -83,9 +106,11 @@ def audio_duration_seconds(path: str | os.PathLike) -> float:
     if not path.is_file():
         raise AudioError(f"Audio file not found: {path}. Check the path (and the data folder setting).")
     try:
-        info = sf.info(str(path))
-        if info.samplerate > 0 and info.frames > 0:
-            return float(info.frames) / float(info.samplerate)
+        with sf.SoundFile(str(path)) as f:
+            if f.samplerate > 0 and 0 < f.frames < UNKNOWN_FRAMES:
+                return float(f.frames) / float(f.samplerate)
+            if f.samplerate > 0 and f.frames == UNKNOWN_FRAMES:  # no length in the header: count the samples
+                return sum(len(block) for block in _blocks(f)) / float(f.samplerate)
     except (sf.LibsndfileError, RuntimeError, TypeError, ValueError):
         pass
     data, rate_hz = load_audio(path, sample_rate=None, mono=True)

@@ -40,6 +40,7 @@ from PIL import Image, ImageDraw, ImageFont
 from dgsdp.audio.io import load_audio
 from dgsdp.errors import ConfigError, DataError, DgsdpError
 from dgsdp.motion import JOINT_NAMES, NUM_JOINTS, PARENTS
+from dgsdp.utils.deadline import check_time, seconds_left
 from dgsdp.utils.io import atomic_path, owner_gone, temp_tag
 
 BACKGROUND = (255, 255, 255)
@@ -218,14 +219,34 @@ def render_frame(
     ``camera`` defaults to one fitted to this pose alone; pass one fitted to the whole motion (``fit_camera``)
     to keep the view fixed over a video.
     """
+    size = _check_size(size)
+    return _draw_frame(joints_t, camera, size, _title_layout(title, size))
+
+
+TitleLayout = tuple[list[str], ImageFont.FreeTypeFont | ImageFont.ImageFont]
+
+
+def _line_px(size: tuple[int, int]) -> int:
+    return max(1, round(min(size) / 120))
+
+
+def _title_layout(title: str | None, size: tuple[int, int]) -> TitleLayout | None:
+    """The title's lines and font in an image of ``size`` (fitted once per video: fitting costs more than a frame)."""
+    if not title:
+        return None
+    return fit_title(title, size[0] - 8 * _line_px(size), max(10, min(size) // 24))
+
+
+def _draw_frame(
+    joints_t: torch.Tensor | np.ndarray, camera: Camera | None, size: tuple[int, int], title: TitleLayout | None
+) -> np.ndarray:
     pose = _as_joints(joints_t)
     if pose.ndim != 2:
         raise DataError(f"render_frame draws one pose (24, 3), got shape {pose.shape}")
-    size = _check_size(size)
     camera = camera or fit_camera(pose)
     image = Image.new("RGB", size, BACKGROUND)
     draw = ImageDraw.Draw(image)
-    line_px = max(1, round(min(size) / 120))
+    line_px = _line_px(size)
     _draw_floor(draw, camera, size, max(1, line_px // 2))
 
     px = camera.project(pose, size)
@@ -243,12 +264,11 @@ def render_frame(
     head_r = HEAD_RADIUS_M * camera.pixels_per_metre(size)
     hx, hy = px[HEAD_JOINT]
     draw.ellipse([hx - head_r, hy - head_r, hx + head_r, hy + head_r], outline=CENTRE_COLOUR, width=line_px)
-    if title:
-        left, top = line_px * 4, line_px * 3
-        lines, font = fit_title(title, size[0] - 2 * left, max(10, min(size) // 24))
-        y = top
+    if title is not None:
+        lines, font = title
+        y = line_px * 3
         for line in lines:
-            draw.text((left, y), line, fill=TEXT_COLOUR, font=font)
+            draw.text((line_px * 4, y), line, fill=TEXT_COLOUR, font=font)
             y += _line_height(font)
     return np.asarray(image, dtype=np.uint8)
 
@@ -258,37 +278,53 @@ def _line_height(font: ImageFont.FreeTypeFont | ImageFont.ImageFont) -> int:
     return int(math.ceil((box[3] - box[1]) * 1.25))
 
 
-def _wrap(words: list[str], font: ImageFont.FreeTypeFont | ImageFont.ImageFont, width_px: int) -> list[str]:
+def _wrap(
+    words: list[str], font: ImageFont.FreeTypeFont | ImageFont.ImageFont, width_px: int, max_lines: int
+) -> list[str]:
+    """Words onto lines of at most ``width_px`` (a word wider than that gets a line of its own); stops after
+    ``max_lines + 1`` lines, which is enough to know the text does not fit (a long text costs no more)."""
     lines: list[str] = []
     for word in words:
         if lines and font.getlength(f"{lines[-1]} {word}") <= width_px:
             lines[-1] = f"{lines[-1]} {word}"
+        elif len(lines) > max_lines:
+            break
         else:
             lines.append(word)
     return lines
 
 
-def fit_title(
-    title: str, width_px: int, size_px: int
-) -> tuple[list[str], ImageFont.FreeTypeFont | ImageFont.ImageFont]:
+def _cut(line: str, font: ImageFont.FreeTypeFont | ImageFont.ImageFont, width_px: int) -> str:
+    """The longest start of ``line`` that fits ``width_px`` with "..." after it (a binary search on its length)."""
+    low, high = 0, len(line)  # line[:low] + "..." fits (or low is 0); line[:high + 1] + "..." does not
+    while low < high:
+        mid = (low + high + 1) // 2
+        if font.getlength(line[:mid] + "...") <= width_px:
+            low = mid
+        else:
+            high = mid - 1
+    return line[:low] + "..."
+
+
+def fit_title(title: str, width_px: int, size_px: int) -> TitleLayout:
     """Lines and font for ``title`` within ``width_px``: wrapped at spaces onto at most ``TITLE_MAX_LINES`` lines,
     the font shrunk from ``size_px`` down to ``MIN_TITLE_PX`` until every line fits. A title that does not fit
     even then is cut, and the cut marked with "..."."""
-    words = title.split() or [title]
+    # A glyph is at least a pixel wide: past these many characters (or a word's width_px) nothing more can show.
+    title = title[: (TITLE_MAX_LINES + 1) * max(width_px, 1)]
+    words = [word[: max(width_px, 1) + 1] for word in title.split()] or [title]
     for px in range(size_px, MIN_TITLE_PX - 1, -1):
         font = _font(px)
-        lines = _wrap(words, font, width_px)
+        lines = _wrap(words, font, width_px, TITLE_MAX_LINES)
         if len(lines) <= TITLE_MAX_LINES and all(font.getlength(line) <= width_px for line in lines):
             return lines, font
     font = _font(MIN_TITLE_PX)
-    lines = _wrap(words, font, width_px)
+    lines = _wrap(words, font, width_px, TITLE_MAX_LINES)
     cut_after = len(lines) > TITLE_MAX_LINES
     fitted = []
     for i, line in enumerate(lines[:TITLE_MAX_LINES]):
         if font.getlength(line) > width_px or (cut_after and i == TITLE_MAX_LINES - 1):
-            while line and font.getlength(line + "...") > width_px:
-                line = line[:-1]
-            line += "..."
+            line = _cut(line, font, width_px)
         fitted.append(line)
     return fitted, font
 
@@ -301,8 +337,10 @@ def ffmpeg_available() -> bool:
 def _frames(
     joints: np.ndarray, cameras: Sequence[Camera], size: tuple[int, int], title: str | None
 ) -> Iterator[np.ndarray]:
+    layout = _title_layout(title, size)
     for pose, camera in zip(joints, cameras, strict=True):
-        yield render_frame(pose, camera, size, title)
+        check_time()  # a request's time limit (dgsdp.utils.deadline), when one is set
+        yield _draw_frame(pose, camera, size, layout)
 
 
 def _write_gif(tmp: Path, frames: Iterator[np.ndarray], fps: float) -> None:
@@ -402,11 +440,14 @@ def _write_mp4(
             )
             assert proc.stdin is not None
             watchdog = _Watchdog(proc, stall_seconds)
+            watchdog.deadline = math.inf  # drawing a frame is our time, not ffmpeg's: only writes can stall
             try:
                 for frame in frames:
-                    proc.stdin.write(frame.tobytes())
                     watchdog.deadline = time.monotonic() + stall_seconds
-                watchdog.deadline = time.monotonic() + stall_seconds + song_seconds
+                    proc.stdin.write(frame.tobytes())
+                    watchdog.deadline = math.inf
+                # the encode's end waits at most until a request's time limit (dgsdp.utils.deadline)
+                watchdog.deadline = time.monotonic() + min(stall_seconds + song_seconds, max(seconds_left(), 0.0))
                 proc.stdin.close()
             except (BrokenPipeError, OSError):
                 pass  # ffmpeg stopped early (or was killed); its log or the watchdog says why
@@ -418,6 +459,7 @@ def _write_mp4(
             code = proc.wait()
             watchdog.stop()
         if watchdog.fired:
+            check_time()  # stopped at the request's time limit: say so, not that ffmpeg stalled
             raise DgsdpError(
                 f"ffmpeg stopped responding while writing the video"
                 f"{'' if audio_path is None else f' for {audio_path}'} and was stopped after {stall_seconds:g} s "

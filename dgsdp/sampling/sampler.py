@@ -23,6 +23,7 @@ from dgsdp.diffusion import GaussianDiffusion
 from dgsdp.diffusion.gaussian import x0_bound
 from dgsdp.sampling.noise import Noise
 from dgsdp.sampling.solvers import SOLVERS, make_solver, solver_timesteps
+from dgsdp.utils.deadline import check_time
 
 # Sampler methods by name (``sampling.method``).
 METHODS = ("ddim", "ddpm", *SOLVERS)
@@ -304,6 +305,7 @@ class Sampler:
         if solver is not None:
             x = pin_state(x, 0)
         for i, t_now in enumerate(tqdm(ts, desc="sampling", leave=False, disable=not progress)):
+            check_time()  # a request's time limit (dgsdp.utils.deadline), when one is set
             t_next = ts[i + 1] if i + 1 < len(ts) else -1
             t = torch.full((b,), t_now, device=device, dtype=torch.long)
             at = guidance.at(i, len(ts), t_now, masked=mask is not None)

@@ -16,6 +16,7 @@ import math
 import os
 import re
 import shutil
+import sys
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -34,6 +35,7 @@ from dgsdp.sampling import METHODS, GuidanceSettings, SamplingSettings  # noqa: 
 from dgsdp.studio import engine as eng  # noqa: E402
 from dgsdp.studio.viewer import CSS_TEMPLATE, HTML_TEMPLATE, JS_ON_LOAD, viewer_value, write_joints_json  # noqa: E402
 from dgsdp.style import AISTPP_GENRES  # noqa: E402
+from dgsdp.utils.deadline import time_limit  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +48,9 @@ EDIT_LABELS = {
     "Regenerate a time range": "range",
 }
 SCHEDULE_HEADERS = ["start (s)", "end (s, or end)", "style"]
+MAX_STYLE_CHARS = 1000  # a style text (free text or one timeline cell); the text encoders read far fewer
+MAX_TIMELINE_ROWS = 50
+LOOPBACK_HOSTS = ("localhost", "::1")  # and 127.0.0.0/8
 
 
 @dataclass
@@ -63,6 +68,10 @@ class StudioConfig:
     queue_size: int = 16
     default_steps: int = SamplingSettings.steps
     finishing: Finishing = field(default_factory=Finishing)  # the finishing's limits (generate.py's finishing keys)
+    allow_checkpoint_paths: bool = False  # True: the model box also opens typed paths of .ckpt files
+    request_timeout_s: float = 600.0  # each request is stopped after this long, and the queue moves on
+    keep_runs: int = 50  # newest run folders (and song uploads) kept; 0 keeps them all
+    auth: list[tuple[str, str]] = field(default_factory=list)  # logins (user, password); empty: no login
 
 
 def find_checkpoints(outputs: str | Path) -> list[str]:
@@ -84,20 +93,22 @@ def schedule_text(rows: Any) -> str:
     if hasattr(rows, "values") and hasattr(rows, "columns"):  # a pandas DataFrame
         rows = rows.values.tolist()
     parts = []
+    rows = [row for row in rows if any(_cell(c) for c in list(row)[:3])]
+    if len(rows) > MAX_TIMELINE_ROWS:
+        raise ConfigError(f"the timeline has {len(rows)} rows; give at most {MAX_TIMELINE_ROWS} spans")
     for row in rows:
-        cells = ["" if c is None or (isinstance(c, float) and np.isnan(c)) else str(c).strip() for c in list(row)[:3]]
+        cells = [_cell(c) for c in list(row)[:3]]
         cells += [""] * (3 - len(cells))
         start, end, style = cells
-        if not any(cells):
-            continue
         if not style:
             raise ConfigError(f"the timeline row {start or '?'}-{end or 'end'} has no style; type a genre or text")
+        check_style_length(style, f"the timeline row {start or '0'}-{end or 'end'}'s style")
         try:
-            start_s = float(start or 0)
-            end_s = None if end.lower() in ("", "end") else float(end)
-        except ValueError:
+            start_s = finite(start or 0, f"the timeline row {start}-{end}'s start")
+            end_s = None if end.lower() in ("", "end") else finite(end, f"the timeline row {start}-{end}'s end")
+        except ConfigError:
             raise ConfigError(
-                f"the timeline row {start}-{end}: times are seconds (numbers), the last end may be 'end'"
+                f"the timeline row {start}-{end}: times are seconds (finite numbers), the last end may be 'end'"
             ) from None
         if start_s < 0 or (end_s is not None and end_s <= start_s):
             raise ConfigError(f"the timeline row {start}-{end} must start at 0 s or later and end after it starts")
@@ -108,6 +119,32 @@ def schedule_text(rows: Any) -> str:
     return "; ".join(parts)
 
 
+def _cell(value: Any) -> str:
+    """A timeline cell as text ('' for an empty cell)."""
+    return "" if value is None or (isinstance(value, float) and np.isnan(value)) else str(value).strip()
+
+
+def check_style_length(text: str, what: str = "the style") -> None:
+    """ConfigError for a style text longer than :data:`MAX_STYLE_CHARS`."""
+    if len(text) > MAX_STYLE_CHARS:
+        raise ConfigError(f"{what} has {len(text)} characters; the limit is {MAX_STYLE_CHARS}: describe it shorter")
+
+
+def finite(value: Any, what: str, integer: bool = False) -> float | int:
+    """A field's value as a finite number (ConfigError naming the field for text, NaN or infinity)."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = math.nan
+    if not math.isfinite(number):
+        raise ConfigError(f"{what} must be a finite number, got {value!r}")
+    if integer:
+        if number != int(number):
+            raise ConfigError(f"{what} must be a whole number, got {value!r}")
+        return int(number)
+    return number
+
+
 def style_text(genre: str | None, free_text: str | None, rows: Any) -> str | None:
     """The style to use: the timeline when it has rows, else the free text, else the genre (None: no style)."""
     schedule = schedule_text(rows)
@@ -115,7 +152,9 @@ def style_text(genre: str | None, free_text: str | None, rows: Any) -> str | Non
         return schedule
     for choice in (free_text, genre):
         if choice and str(choice).strip():
-            return str(choice).strip()
+            text = str(choice).strip()
+            check_style_length(text)
+            return text
     return None
 
 
@@ -164,11 +203,56 @@ class Studio:
 
     # --- helpers ----------------------------------------------------------------------------------------------
     def checkpoints(self) -> list[str]:
+        """The models the page offers: ``--checkpoint`` first, then the runs under the outputs folder."""
         found = find_checkpoints(self.config.outputs)
         if self.config.checkpoint:
             first = str(Path(self.config.checkpoint).expanduser())
             found = [first] + [c for c in found if Path(c).resolve() != Path(first).resolve()]
         return found
+
+    def checkpoint_path(self, choice: str | None) -> str:
+        """The checkpoint of the model box: one the page lists; a typed path only with ``--allow-checkpoint-paths``.
+
+        Without the flag, a path that is not listed gets the same message whether or not it exists, so the page
+        tells nobody which files the server has."""
+        text = str(choice or "").strip()
+        if not text:
+            raise ConfigError("choose a model: one of the runs listed in the Model box")
+        if text in self.checkpoints():
+            return text
+        if not self.config.allow_checkpoint_paths:
+            raise ConfigError(
+                "choose one of the models listed in the Model box; this studio does not open other paths "
+                "(whoever runs it can allow typed paths with --allow-checkpoint-paths)"
+            )
+        path = Path(text).expanduser()
+        if path.exists() and not path.is_file():
+            raise ConfigError(f"{text} is not a checkpoint file (a folder or a device); give the path of a .ckpt")
+        return text
+
+    def prune(self) -> None:
+        """Keep the newest ``keep_runs`` finished run folders and song uploads; remove the rest, and run folders
+        that never got their viewer file (a request killed mid-way) once they are older than a request can be."""
+        keep = self.config.keep_runs
+        runs = _newest_first(self.work_dir / "runs")
+        finished = [d for d in runs if (d / "viewer.json").is_file()]
+        stale = [d for d in runs if d not in finished and _age_s(d) > self.config.request_timeout_s + 60]
+        doomed = stale + (finished[keep:] if keep > 0 else [])
+        uploads = self.uploads_dir()
+        if uploads is not None and keep > 0:
+            doomed += _newest_first(uploads)[keep:]
+        for path in doomed:
+            if path.is_dir():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+
+    def uploads_dir(self) -> Path | None:
+        """Gradio's upload folder when it is this studio's own (inside its work folder), else None."""
+        from gradio.utils import get_upload_folder
+
+        folder = Path(get_upload_folder()).resolve()
+        return folder if folder.is_relative_to(self.work_dir) else None
 
     def request_folder(self) -> Path:
         folder = self.work_dir / "runs" / f"{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:8]}"
@@ -216,9 +300,9 @@ class Studio:
     def on_checkpoint(self, checkpoint: str | None, genre: str | None):
         """Load the chosen model; list its genres (one clear error for a wrong checkpoint)."""
         if not checkpoint:
-            return gr.update(), "Choose a checkpoint: a run under the outputs folder or the path of a .ckpt file."
+            return gr.update(), "Choose a model: one of the runs listed in the Model box."
         try:
-            genres = self.engine.genres(checkpoint)
+            genres = self.engine.genres(self.checkpoint_path(checkpoint))
         except DgsdpError as e:
             raise gr.Error(str(e)) from None
         if not genres:
@@ -247,23 +331,27 @@ class Studio:
         progress: gr.Progress,
     ) -> tuple[str, list[str], dict, str]:
         """Run one request into a fresh folder; return the viewer value, files, session state and a status line."""
+        limit = self.config.request_timeout_s
         folder = self.request_folder()
         try:
-            song = folder / f"{_safe_name(request.song.stem)}{request.song.suffix.lower()}"
-            shutil.copyfile(request.song, song)
-            request.song = song
-            progress(0.02, desc="loading the model")
-            self.engine.generator(request.checkpoint)
-            progress(0.05, desc="reading the song")
-            seconds = self.engine.song_seconds(request.checkpoint, song)
-            started = time.perf_counter()
-            dance = self.engine.run(request, folder / song.stem, progress=True)
-            elapsed = time.perf_counter() - started
+            with time_limit(limit, f"the request was stopped at the studio's time limit of {limit:g} s per "
+                            "request (--request-timeout); try a shorter song, fewer steps or no video"):  # fmt: skip
+                song = folder / f"{_safe_name(request.song.stem)}{request.song.suffix.lower()}"
+                shutil.copyfile(request.song, song)
+                request.song = song
+                progress(0.02, desc="reading the song")
+                seconds = self.engine.song_seconds(song)
+                progress(0.05, desc="loading the model")
+                self.engine.generator(request.checkpoint)
+                started = time.perf_counter()
+                dance = self.engine.run(request, folder / song.stem, progress=True)
+                elapsed = time.perf_counter() - started
+            progress(0.98, desc="preparing the viewer")
+            joints_path = write_joints_json(folder / "viewer.json", dance.joints, dance.fps)  # marks it finished
         except Exception:
             shutil.rmtree(folder, ignore_errors=True)  # nothing half-written stays behind
             raise
-        progress(0.98, desc="preparing the viewer")
-        joints_path = write_joints_json(folder / "viewer.json", dance.joints, dance.fps)
+        self.prune()
         npy = next(f for f in dance.files if f.suffix == ".npy")
         label = f"{song.stem}  |  {dance.style}" if dance.style else song.stem
         value = viewer_value(_file_url(joints_path), _file_url(song), len(dance.joints), dance.fps, label)
@@ -280,9 +368,9 @@ class Studio:
     ):  # fmt: skip
         try:
             request = eng.DanceRequest(
-                checkpoint=str(checkpoint or ""), song=self.check_song(song),
-                style=style_text(genre, free_text, rows), music_weight=float(music_w), style_weight=float(style_w),
-                sampler=str(sampler), steps=int(steps), seed=int(seed), video=bool(video), cleanup=bool(cleanup),
+                checkpoint=self.checkpoint_path(checkpoint), song=self.check_song(song),
+                style=style_text(genre, free_text, rows), **sampling_values(music_w, style_w, sampler, steps, seed),
+                video=bool(video), cleanup=bool(cleanup),
             )  # fmt: skip
             return self.run(request, progress)
         except DgsdpError as e:
@@ -302,19 +390,44 @@ class Studio:
             motion = np.load(current["motion"], allow_pickle=False)
             edit = eng.Edit(
                 kind=kind, motion=motion, keyframe_seconds=eng.parse_seconds(keyframe_text),
-                seed_seconds=float(seed_seconds or 0), start_seconds=float(range_start or 0),
-                end_seconds=float(range_end or 0),
+                seed_seconds=finite(seed_seconds or 0, "Continue: seconds kept from the end"),
+                start_seconds=finite(range_start or 0, "Range start"), end_seconds=finite(range_end or 0, "Range end"),
             )  # fmt: skip
             # Edits keep the current dance's song; continuing dances on to the song in the upload box.
             target_song = self.check_song(song) if kind == "continue" else Path(current["song"])
             request = eng.DanceRequest(
-                checkpoint=str(checkpoint or ""), song=target_song, style=style_text(genre, free_text, rows),
-                music_weight=float(music_w), style_weight=float(style_w), sampler=str(sampler), steps=int(steps),
-                seed=int(seed), video=bool(video), edit=edit, cleanup=bool(cleanup),
+                checkpoint=self.checkpoint_path(checkpoint), song=target_song, style=style_text(genre, free_text, rows),
+                **sampling_values(music_w, style_w, sampler, steps, seed), video=bool(video), edit=edit,
+                cleanup=bool(cleanup),
             )  # fmt: skip
             return self.run(request, progress)
         except DgsdpError as e:
             raise gr.Error(str(e)) from None
+
+
+def sampling_values(music_w: Any, style_w: Any, sampler: Any, steps: Any, seed: Any) -> dict[str, Any]:
+    """The sampling fields of a request, checked to be finite numbers (one message naming the field)."""
+    return {
+        "music_weight": finite(music_w, "Music guidance"), "style_weight": finite(style_w, "Style guidance"),
+        "sampler": str(sampler), "steps": finite(steps, "Steps", integer=True), "seed": finite(seed, "Seed", integer=True),
+    }  # fmt: skip
+
+
+def _newest_first(folder: Path) -> list[Path]:
+    if not folder.is_dir():
+        return []
+    entries = []
+    for path in folder.iterdir():
+        with contextlib.suppress(OSError):  # removed meanwhile
+            entries.append((path.stat().st_mtime, path))
+    return [path for _, path in sorted(entries, key=lambda e: e[0], reverse=True)]
+
+
+def _age_s(path: Path) -> float:
+    try:
+        return time.time() - path.stat().st_mtime
+    except OSError:
+        return 0.0
 
 
 def _file_url(path: Path) -> str:
@@ -324,6 +437,7 @@ def _file_url(path: Path) -> str:
 def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[gr.Blocks, Studio]:
     """The studio's Gradio Blocks (not launched) and its handlers."""
     studio = Studio(config, engine)
+    studio.prune()
     checkpoints = studio.checkpoints()
     genres = list(AISTPP_GENRES.names)
     with gr.Blocks(title="dgsdp studio", analytics_enabled=False) as demo:
@@ -337,15 +451,16 @@ def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[g
                                elem_id="song")  # fmt: skip
                 example = gr.Dropdown(genres, value=None, label="...or an example song (synthetic, 10 s)",
                                       elem_id="example")  # fmt: skip
-                checkpoint = gr.Dropdown(
+                typed = ", or type the path of a .ckpt" if config.allow_checkpoint_paths else ""
+                checkpoint = gr.Dropdown(  # a custom value reaches Studio.checkpoint_path, which says what to do
                     checkpoints, value=checkpoints[0] if checkpoints else None, allow_custom_value=True,
-                    label="Model (runs under the outputs folder, or type the path of a .ckpt)", elem_id="checkpoint",
+                    label=f"Model (runs under the outputs folder{typed})", elem_id="checkpoint",
                 )  # fmt: skip
                 model_status = gr.Markdown("", elem_id="model-status")
                 with gr.Row():
                     genre = gr.Dropdown(genres, value=genres[0], label="Genre", elem_id="genre")
                     free_text = gr.Textbox(label="...or describe the style", placeholder="sharp, powerful krump",
-                                           elem_id="style-text")  # fmt: skip
+                                           max_length=MAX_STYLE_CHARS, elem_id="style-text")  # fmt: skip
                 with gr.Accordion("Style timeline (a style per span of the song)", open=False):
                     rows = gr.Dataframe(
                         headers=SCHEDULE_HEADERS, datatype=["number", "str", "str"], column_count=3,
@@ -361,7 +476,7 @@ def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[g
                     sampler = gr.Radio(list(METHODS), value=SamplingSettings.method, label="Sampler")
                     steps = gr.Slider(1, 1000, value=config.default_steps, step=1, label="Steps",
                                       elem_id="steps")  # fmt: skip
-                    seed = gr.Number(value=0, precision=0, label="Seed")
+                    seed = gr.Number(value=0, label="Seed")  # whole numbers: checked by the handler
                     video = gr.Checkbox(value=True, label="Render an mp4 video")
                     cleanup = gr.Checkbox(
                         value=True, label="Finish the dance (on the beat, feet on the floor)", elem_id="cleanup"
@@ -417,7 +532,10 @@ def theme() -> gr.themes.Base:
 
 
 def launch_kwargs(config: StudioConfig, studio: Studio) -> dict[str, Any]:
+    """``demo.launch`` arguments: the address, the files it may serve, the upload limit, the logins."""
     return {
+        "auth": list(config.auth) or None,
+        "auth_message": "Log in to the dgsdp studio." if config.auth else None,
         "server_name": config.host,
         "server_port": config.port,
         "allowed_paths": [str(studio.work_dir)],
@@ -444,6 +562,19 @@ def parse_args(argv: list[str] | None = None) -> StudioConfig:
     p.add_argument("--device", default=defaults.device, help="auto, cpu or cuda")
     p.add_argument("--queue-size", type=int, default=defaults.queue_size, help="requests that may wait in the queue")
     p.add_argument("--steps", type=int, default=defaults.default_steps, help="default number of sampling steps")
+    shared = p.add_argument_group("sharing the studio (docs/studio.md)")
+    shared.add_argument("--auth", action="append", default=[], metavar="USER:PASSWORD",
+                        help="require this login (repeat for more users); recommended with --host beyond 127.0.0.1")  # fmt: skip
+    shared.add_argument("--auth-file", metavar="FILE",
+                        help="require one of the logins in FILE (a USER:PASSWORD per line; # starts a comment)")  # fmt: skip
+    shared.add_argument("--allow-checkpoint-paths", action="store_true",
+                        help="let users type the path of any .ckpt on this machine into the Model box "
+                        "(default: only the listed runs)")  # fmt: skip
+    shared.add_argument("--request-timeout", type=float, default=defaults.request_timeout_s, metavar="SECONDS",
+                        help=f"stop a request after this long so the queue moves on (default {defaults.request_timeout_s:g})")  # fmt: skip
+    shared.add_argument("--keep-runs", type=int, default=defaults.keep_runs, metavar="N",
+                        help=f"keep the newest N generated dances (run folders) and song uploads, remove older ones "
+                        f"(default {defaults.keep_runs}; 0 keeps everything)")  # fmt: skip
     limits = p.add_argument_group("finishing limits (generate.py's finishing keys; docs/floor.md, docs/beatsync.md)")
     f = defaults.finishing
     for key, metavar, what in (
@@ -469,13 +600,62 @@ def parse_args(argv: list[str] | None = None) -> StudioConfig:
     a = p.parse_args(argv)
     try:
         finishing = Finishing(a.max_turn_rate, a.max_tilt_rate, a.max_air_seconds, a.beat_sync_reach)
+        logins = [parse_login(text, "--auth") for text in a.auth] + (read_logins(a.auth_file) if a.auth_file else [])
     except ConfigError as e:
         p.error(str(e))
+    if not (a.request_timeout > 0 and math.isfinite(a.request_timeout)):
+        p.error(f"--request-timeout must be a positive number of seconds, got {a.request_timeout:g}")
+    if a.keep_runs < 0:
+        p.error(f"--keep-runs must be 0 (keep everything) or more, got {a.keep_runs}")
     return StudioConfig(
         checkpoint=a.checkpoint, host=a.host, port=a.port, outputs=a.outputs, work_dir=a.work_dir,
         max_upload_mb=a.max_upload_mb, max_song_seconds=a.max_seconds, device=a.device, queue_size=a.queue_size,
-        default_steps=a.steps, finishing=finishing,
+        default_steps=a.steps, finishing=finishing, allow_checkpoint_paths=a.allow_checkpoint_paths,
+        request_timeout_s=a.request_timeout, keep_runs=a.keep_runs, auth=logins,
     )  # fmt: skip
+
+
+def parse_login(text: str, where: str) -> tuple[str, str]:
+    """``user:password`` as a (user, password) pair; ConfigError saying where the bad login came from."""
+    user, sep, password = text.strip().partition(":")
+    if not sep or not user or not password:
+        raise ConfigError(f"{where}: a login is USER:PASSWORD with neither part empty")
+    return user, password
+
+
+def read_logins(path: str) -> list[tuple[str, str]]:
+    """The logins of an ``--auth-file`` (``user:password`` per line; blank lines and # comments skipped)."""
+    try:
+        lines = Path(path).expanduser().read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"--auth-file {path}: cannot read it ({e})") from None
+    logins = [
+        parse_login(line, f"--auth-file {path}, line {i}")
+        for i, line in enumerate(lines, 1)
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
+    if not logins:
+        raise ConfigError(f"--auth-file {path} has no login; write one USER:PASSWORD per line")
+    return logins
+
+
+def is_loopback(host: str) -> bool:
+    """Whether serving on ``host`` reaches this machine only."""
+    return host in LOOPBACK_HOSTS or host.startswith("127.")
+
+
+def sharing_warning(config: StudioConfig) -> str | None:
+    """The warning printed when the studio is served beyond this machine (None on a loopback address)."""
+    if is_loopback(config.host):
+        return None
+    text = f"warning: --host {config.host} serves the studio to the network: everyone who can reach port {config.port}"
+    if not config.auth:
+        text += " can use it, with no login. Add --auth USER:PASSWORD or --auth-file FILE (docs/studio.md)."
+    else:
+        text += f" gets a login page ({len(config.auth)} login(s) set). The connection is not encrypted (http)."
+    if config.allow_checkpoint_paths:
+        text += " With --allow-checkpoint-paths, users can open any .ckpt on this machine."
+    return text
 
 
 def _limit(text: str) -> float | None:
@@ -488,6 +668,11 @@ def main(argv: list[str] | None = None) -> None:
     config = parse_args(argv)
     if config.checkpoint and not Path(config.checkpoint).expanduser().is_file():
         raise SystemExit(f"error: checkpoint {config.checkpoint} does not exist; check the path")
+    warning = sharing_warning(config)
+    if warning:
+        print(warning, file=sys.stderr, flush=True)
+    # Uploads go into the work folder, where --keep-runs prunes them (not the machine-wide temp folder).
+    os.environ["GRADIO_TEMP_DIR"] = str(Path(config.work_dir).expanduser().resolve() / "uploads")
     demo, studio = build_app(config)
     print(f"dgsdp studio: open http://{config.host}:{config.port} in a browser (Ctrl+C stops it)", flush=True)
     demo.launch(**launch_kwargs(config, studio))

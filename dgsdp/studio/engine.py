@@ -15,6 +15,7 @@ Edits of the current dance map to the editing tasks of :mod:`dgsdp.editing.masks
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -24,8 +25,9 @@ import numpy as np
 import torch
 
 import dgsdp.export
+from dgsdp.audio.io import audio_duration_seconds
 from dgsdp.audio.tempo import TempoFold
-from dgsdp.errors import ConfigError
+from dgsdp.errors import AudioError, ConfigError
 from dgsdp.generation import DanceGenerator, EditSettings, Finishing, write_motion
 from dgsdp.motion import pose_to_joints
 from dgsdp.sampling import GuidanceSettings, SamplingSettings
@@ -128,9 +130,15 @@ class Engine:
             return []
         return list(gen.embedder().vocab.names)
 
-    def song_seconds(self, checkpoint: str, song: Path) -> float:
-        """The song's length (AudioError for an unreadable or too long song)."""
-        return self.generator(checkpoint).check_duration(song)
+    def song_seconds(self, song: Path) -> float:
+        """The song's length (AudioError for an unreadable song, or one longer than the studio's --max-seconds)."""
+        seconds = audio_duration_seconds(song)
+        if self.max_song_seconds is not None and seconds > self.max_song_seconds:
+            raise AudioError(
+                f"{song.name} is {seconds:.0f} s long; this studio takes songs up to {self.max_song_seconds:g} s "
+                "(its --max-seconds setting): cut the song shorter"
+            )
+        return seconds
 
     def run(self, request: DanceRequest, out_base: Path, progress: bool = False) -> Dance:
         """Generate (or edit) one dance and write its files as ``out_base`` + suffixes."""
@@ -208,7 +216,10 @@ def parse_seconds(text: str) -> list[float]:
     values: list[float] = []
     for item in str(text or "").replace(";", ",").replace(",", " ").split():
         try:
-            values.append(float(item))
+            value = float(item)
         except ValueError:
-            raise ConfigError(f"{item!r} is not a time in seconds; write keyframe times like 1.5, 4, 8") from None
+            value = math.nan
+        if not math.isfinite(value):
+            raise ConfigError(f"{item!r} is not a time in seconds; write keyframe times like 1.5, 4, 8")
+        values.append(value)
     return values

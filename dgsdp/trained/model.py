@@ -12,6 +12,7 @@ imports Lightning.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -148,6 +149,22 @@ def _default_floor_height(module: torch.nn.Module, state: dict[str, Any], prefix
         state[key] = module.floor_height.detach().clone()
 
 
+def _load_failure(error: Exception, max_chars: int = 200) -> str:
+    """What ``torch.load(weights_only=True)`` said, in one short line: the object it refused for a pickled
+    object (torch's own advice, to load the file as a full pickle, would run the file's code: never given here),
+    else the first line of its message, cut at a word."""
+    text = re.sub(r"\x1b\[[0-9;]*m", "", str(error)).strip()
+    refused = re.search(r"Unsupported global: GLOBAL (\S+)", text)
+    if refused:
+        return f"it holds a pickled {refused[1].rstrip('.,;')} object"
+    if "weights only load failed" in text.lower():
+        return "it holds pickled objects"
+    first = text.splitlines()[0].strip() if text else ""
+    if len(first) > max_chars:
+        first = first[:max_chars].rsplit(" ", 1)[0].rstrip(".,;:") + " ..."
+    return f"{type(error).__name__}: {first}" if first else type(error).__name__
+
+
 def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
     """A checkpoint file as plain data (tensors and builtins only), or one clear CheckpointError."""
     p = Path(path).expanduser()
@@ -156,9 +173,8 @@ def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     try:
         ckpt = torch.load(p, map_location=map_location, weights_only=True)
     except Exception as e:  # noqa: BLE001 - any failure here means the file is not a usable checkpoint
-        first = str(e).strip().splitlines()[0][:300] if str(e).strip() else ""
         raise CheckpointError(
-            f"cannot read checkpoint {p}: {type(e).__name__}: {first}. It is damaged, not a PyTorch checkpoint, "
+            f"cannot read checkpoint {p}: {_load_failure(e)}. It is damaged, not a PyTorch checkpoint, "
             "or holds objects other than tensors and plain values (which are never loaded)"
         ) from e
     if not isinstance(ckpt, dict) or "hyper_parameters" not in ckpt or "state_dict" not in ckpt:

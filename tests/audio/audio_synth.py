@@ -28,3 +28,17 @@ def write_audio(path: Path, data: np.ndarray, sample_rate: int) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     sf.write(str(path), data.T if data.ndim == 2 else data, sample_rate)
     return path
+
+
+def flac_without_length(path: Path, seconds: float, rate_hz: int = 22050) -> np.ndarray:
+    """A FLAC whose STREAMINFO gives 0 total samples ("unknown", as a streamed FLAC may); returns its samples."""
+    samples = (np.random.default_rng(0).standard_normal(round(seconds * rate_hz)) * 0.1).astype(np.float32)
+    sf.write(path, samples, rate_hz, subtype="PCM_16")
+    data = bytearray(path.read_bytes())
+    assert data[:4] == b"fLaC" and data[4] & 0x7F == 0  # the first block is STREAMINFO
+    # STREAMINFO starts at byte 8; its total-samples field is the low 36 bits of bytes 18-25 (big-endian)
+    data[21] &= 0xF0
+    data[22:26] = bytes(4)
+    path.write_bytes(bytes(data))
+    assert sf.info(path).frames == 2**63 - 1  # libsndfile: length unknown
+    return samples

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import soundfile as sf
-from audio_synth import write_audio
+from audio_synth import flac_without_length, write_audio
 
 from dgsdp.audio import audio_duration_seconds, load_audio
 from dgsdp.errors import AudioError
@@ -78,3 +78,12 @@ def test_corrupt_and_empty_files(tmp_path):
     no_samples = write_audio(tmp_path / "zero.wav", np.zeros(0, np.float32), 22050)
     with pytest.raises(AudioError, match="no samples"):
         load_audio(no_samples, 15360)
+
+
+def test_flac_without_a_length_in_its_header(tmp_path):
+    path = tmp_path / "stream.flac"
+    samples = flac_without_length(path, 3.0)
+    assert audio_duration_seconds(path) == pytest.approx(3.0, abs=1e-9)  # counted, not the header's 4e14 s
+    wave, rate_hz = load_audio(path, sample_rate=None)
+    assert rate_hz == 22050 and wave.shape == samples.shape
+    np.testing.assert_allclose(wave, samples, atol=1 / 2**15)  # 16-bit quantisation

@@ -4,6 +4,7 @@ that follows the dancer, mp4 with one frame per motion frame and the song from t
 import json
 import shutil
 import subprocess
+import time
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ import dgsdp.export.render as render
 from dgsdp.errors import AudioError, ConfigError, DataError
 from dgsdp.export import Camera, ffmpeg_available, render_frame, render_video
 from dgsdp.motion import axis_angle_to_matrix, forward_kinematics, root_rotation_y_up_to_z_up
+from dgsdp.utils.deadline import TimeLimitError, time_limit
 
 WHITE = np.array([255, 255, 255])
 
@@ -342,3 +344,39 @@ def test_long_title_pixels_stay_inside_the_frame():
     assert not ink[:, -margin + 1 :].any()  # no text runs into the right margin (or off the image)
     rows = np.nonzero(ink.any(axis=1))[0]
     assert rows.max() - rows.min() > 20  # more than one line
+
+
+def test_a_long_title_is_fitted_once_per_video_and_a_huge_one_quickly(tmp_path, monkeypatch):
+    fitted = []
+    fit = render.fit_title
+    monkeypatch.setattr(render, "fit_title", lambda *args: fitted.append(args[0]) or fit(*args))
+    title = " ".join(["sharp powerful krump"] * 50)[:1000]
+    out = render_video(tmp_path / "dance.gif", dancing(8), fps=30, title=title, size=(96, 96))
+    assert out.is_file() and fitted == [title]  # once for the 8 frames
+    for huge in (" ".join(["krump"] * 20_000), "x" * 100_000):  # 100 KB with spaces, and one long word
+        started = time.perf_counter()
+        lines, font = fit(huge, 448, 20)
+        assert time.perf_counter() - started < 1.0
+        assert len(lines) == render.TITLE_MAX_LINES if " " in huge else len(lines) == 1
+        assert lines[-1].endswith("...") and all(font.getlength(line) <= 448 for line in lines)
+
+
+@pytest.mark.skipif(not ffmpeg_available(), reason="ffmpeg not installed")
+def test_slow_frames_are_not_taken_for_a_stalled_ffmpeg(tmp_path, monkeypatch):
+    """The watchdog counts the time ffmpeg takes to accept a frame, not the time spent drawing it."""
+    monkeypatch.setenv("DGSDP_FFMPEG_TIMEOUT", "0.5")
+    draw = render._draw_frame
+
+    def slow(*args):
+        time.sleep(0.8)
+        return draw(*args)
+
+    monkeypatch.setattr(render, "_draw_frame", slow)
+    out = render_video(tmp_path / "dance.mp4", dancing(3), fps=30, size=(64, 64))
+    assert counted_frames(out)[0] == 3
+
+
+def test_the_video_stops_at_a_time_limit_and_leaves_no_file(tmp_path):
+    with time_limit(0.2, "stopped: the request's time limit"), pytest.raises(TimeLimitError, match="time limit"):
+        render_video(tmp_path / "dance.gif", dancing(2000), fps=30, size=(64, 64))
+    assert not any(tmp_path.iterdir())

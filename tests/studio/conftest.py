@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 import urllib.request
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -96,3 +97,23 @@ def studio_url(chromium, studio_checkpoint, tmp_path_factory):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+@pytest.fixture(scope="session")
+def serve_studio():
+    """``serve_studio(config)``: a context manager serving that studio from this process (see serve_in_process)."""
+    return serve_in_process
+
+
+@contextmanager
+def serve_in_process(config):
+    """The studio of ``config`` served from this process on a free 127.0.0.1 port: yields (url, Studio)."""
+    from dgsdp.studio.app import build_app, launch_kwargs
+
+    demo, studio = build_app(config)
+    port = free_port()
+    demo.launch(**{**launch_kwargs(config, studio), "server_port": port, "prevent_thread_lock": True, "quiet": True})
+    try:
+        yield f"http://127.0.0.1:{port}/", studio
+    finally:
+        demo.close()

@@ -97,7 +97,8 @@ def test_command_line_defaults_to_this_machine_only(tmp_path):
 def studio(studio_checkpoint, tmp_path_factory) -> Studio:
     work = tmp_path_factory.mktemp("studio_app")
     config = StudioConfig(checkpoint=studio_checkpoint, work_dir=str(work), outputs=str(work / "none"),
-                          max_song_seconds=20, max_upload_mb=2, device="cpu")  # fmt: skip
+                          max_song_seconds=20, max_upload_mb=2, device="cpu",
+                          allow_checkpoint_paths=True)  # fmt: skip
     demo, studio = build_app(config)
     assert isinstance(demo, gr.Blocks)
     return studio
@@ -174,7 +175,11 @@ def test_errors_are_one_clear_message(studio, studio_songs, tmp_path):
     cases = [
         (None, {}, "upload a song"),
         (str(studio_songs["broken"]), {}, "Cannot decode audio file"),
-        (str(studio_songs["long"]), {}, "30 s long; the limit is max_song_seconds=20"),
+        (
+            str(studio_songs["long"]),
+            {},
+            "30 s long; this studio takes songs up to 20 s \\(its --max-seconds setting\\)",
+        ),
         (str(studio_songs["three"]), {"checkpoint": str(tmp_path / "none.ckpt")}, "does not exist"),
         (str(studio_songs["three"]), {"genre": "", "free_text": ""}, "this model is conditioned on style"),
         (str(studio_songs["three"]), {"rows": [[0, "x", "krump"]]}, "times are seconds"),

@@ -143,13 +143,15 @@ def test_errors_appear_in_the_page(page, studio_url, studio_songs):
     upload_and_generate(page, studio_songs["broken"])
     page.get_by_text("Cannot decode audio file").first.wait_for(timeout=GENERATE_TIMEOUT_MS)
     upload_and_generate(page, studio_songs["long"])
-    page.get_by_text("the limit is max_song_seconds=20").first.wait_for(timeout=GENERATE_TIMEOUT_MS)
+    page.get_by_text("this studio takes songs up to 20 s (its --max-seconds setting)").first.wait_for(
+        timeout=GENERATE_TIMEOUT_MS
+    )
     assert page.eval_on_selector(".dgsdp-viewer", "e => e.dataset.frames") == "0"  # no dance was shown
 
     checkpoint = page.locator("#checkpoint input")
     checkpoint.fill("/nowhere/model.ckpt")
     checkpoint.press("Enter")
-    page.get_by_text("checkpoint /nowhere/model.ckpt does not exist").first.wait_for(timeout=30_000)
+    page.get_by_text("choose one of the models listed in the Model box").first.wait_for(timeout=30_000)
 
 
 def test_two_sessions_get_their_own_dances(browser, studio_url, studio_songs):
