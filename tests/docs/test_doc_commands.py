@@ -193,11 +193,11 @@ def _keys(argv: list[str]) -> set[str]:
     return {a.split("=", 1)[0].lstrip("+~") for a in argv if "=" in a and not a.startswith("-")}
 
 
-def job_for(c: Command, values: dict[str, str], folder: Path, i: int) -> dict | None:
-    """The driver's job for a run, config or help command (None for the others)."""
+def job_for(c: Command, values: dict[str, str], folder: Path) -> dict:
+    """The driver's job for a run, config or help command."""
     env, words = _words(c, values)
     target, argv, key = _target(words)
-    job = {"name": c.name, **target, "cwd": str(folder), "env": {"DGSDP_HOME": str(folder), **env}}
+    job = {"name": c.text, **target, "cwd": str(folder), "env": {"DGSDP_HOME": str(folder), **env}}
     if env.get("PYTHONPATH") == ".":
         job["path"] = [str(folder)]
     if c.runner == "help":
@@ -213,8 +213,7 @@ def job_for(c: Command, values: dict[str, str], folder: Path, i: int) -> dict | 
     if key == "generate.py" and "task" in _keys(argv):  # an edit: the given motion has the song's length
         tiny = [*tiny, f"seconds={SONG_SECONDS}"]
     argv = [*argv, *(t for t in tiny if t.split("=", 1)[0] not in _keys(argv))]
-    job = {**job, "argv": argv, "globs": {"<run>": "outputs/train/runs/*", "<time>": "outputs/sweeps/table4/*"}}
-    return job
+    return {**job, "argv": argv, "globs": {"<run>": "outputs/train/runs/*"}}
 
 
 def write_page_files(c: Command, folder: Path) -> None:
@@ -275,11 +274,11 @@ def runs(tmp_path_factory):
         write_edge_checkpoint(folder / "EDGE" / "checkpoint.pt", 35, d=32, layers=2, ff=64)
         shutil.copy(folder / "EDGE" / "checkpoint.pt", folder / "checkpoint.pt")
         shutil.copy(checkpoint, folder / "model.ckpt")
-    for i, c in enumerate(ALL):
+    for c in ALL:
         folder = folders[c.page]
         write_page_files(c, folder)
-        if c.runner in ("run", "config", "help"):
-            jobs.append(job_for(c, values, folder, i))
+        if c.runner in ("run", "config", "help") and c.text not in {j["name"] for j in jobs}:
+            jobs.append(job_for(c, values, folder))  # a command on two pages runs once (results are by command)
     for page in PAGES:  # the pages' untitled Python blocks, after their commands (they use what those wrote)
         text = (REPO / page).read_text()
         for k, (lang, title, body) in enumerate(fenced_blocks(text)):
@@ -306,7 +305,8 @@ def runs(tmp_path_factory):
     results = json.loads((tmp / "results.json").read_text())
     print("seconds per command:", json.dumps({k: round(v["seconds"], 1) for k, v in results.items()}, indent=1))
     for c in (c for c in ALL if c.runner == "studio"):
-        studios[c.name] = start_studio(c, values, folders[c.page])
+        if c.text not in studios:  # a command on two pages runs once (results are by command)
+            studios[c.text] = start_studio(c, values, folders[c.page])
     pages = {name: page_served(port, p) for name, (p, port) in studios.items()}
     for p, _ in studios.values():
         p.terminate()
@@ -320,14 +320,14 @@ def _ok(result: dict) -> bool:
 
 @pytest.mark.parametrize("c", [c for c in ALL if c.runner == "run"], ids=lambda c: c.name)
 def test_run(runs, c):
-    result = runs["results"][c.name]
+    result = runs["results"][c.text]
     assert _ok(result), (result["code"], result["stdout"][-2000:], result["stderr"][-3000:])
 
 
 @pytest.mark.parametrize("c", [c for c in ALL if c.runner == "config"], ids=lambda c: c.name)
 def test_config(runs, c):
     """Composed as written (the parts this machine lacks aside); each key=value it sets is in the config."""
-    result = runs["results"][c.name]
+    result = runs["results"][c.text]
     assert _ok(result), (result["code"], result["stderr"][-3000:])
     if "--jobs" in c.text:
         assert "job" in result["stdout"].lower()
@@ -354,7 +354,7 @@ def _same(composed, written: str) -> bool:
 
 @pytest.mark.parametrize("c", [c for c in ALL if c.runner == "help"], ids=lambda c: c.name)
 def test_help_names_every_option(runs, c):
-    result = runs["results"][c.name]
+    result = runs["results"][c.text]
     assert _ok(result), result
     for option in re.findall(r"(?<!\S)(--[a-z][\w-]*)", c.text):
         assert option in result["stdout"], (option, result["stdout"][:2000])
@@ -362,7 +362,7 @@ def test_help_names_every_option(runs, c):
 
 @pytest.mark.parametrize("c", [c for c in ALL if c.runner == "studio"], ids=lambda c: c.name)
 def test_studio_serves_its_page(runs, c):
-    assert "<html" in runs["studios"][c.name].lower()
+    assert "<html" in runs["studios"][c.text].lower()
 
 
 def test_docs_serve_loads_the_site_config():
