@@ -69,8 +69,9 @@ RUNNERS: list[tuple[str, str, str]] = [
     (r"^python -m dgsdp\.(quickstart|sweep|interop\.edge import|audio\.extract)\b", "run", ""),
 ]
 
-# placeholder -> what stands for it (filled by the fixture)
-PLACEHOLDERS = ("<ckpt>", "/path/to/aistpp", "<time>", "<run>")
+# the placeholders the runs fill in (<ckpt>, the dataset: the fixture; <run>: the newest run of the page's folder;
+# <time>: only in commands checked by --help)
+PLACEHOLDERS = ("<ckpt>", "<run>", "<time>")
 # tiny settings added to a run, by entry point, unless the command sets the key itself
 TINY = {
     "train.py": ["debug=tiny", "trainer.max_steps=2", "trainer.max_epochs=-1", "trainer.limit_val_batches=0",
@@ -145,6 +146,8 @@ def test_every_command_has_a_runner():
     assert not missing, "commands with no runner in tests/docs/test_doc_commands.py (add one to RUNNERS):\n" + "\n".join(missing)  # fmt: skip
     assert {c.page for c in ALL} == set(PAGES)  # every page has commands
     assert sum(c.runner == "run" for c in ALL) >= 20
+    unknown = [c.name for c in ALL if c.runner != "skip" and set(re.findall(r"<[^>]+>", c.text)) - set(PLACEHOLDERS)]
+    assert not unknown, f"placeholders no runner fills in: {unknown}"
 
 
 def test_install_commands_are_ci_s():
