@@ -392,5 +392,14 @@ def test_the_runs_wrote_what_the_pages_say(runs):
     assert (folders["docs/guides/edge-weights.md"] / "edge.ckpt").is_file()
     assert (folders["docs/guides/plugins.md"] / "plugin_run" / "checkpoints" / "last.ckpt").is_file()
     assert (folders["docs/guides/plugins.md"] / "plugin_dance.bvh").is_file()
+    quickstart = runs["results"]["python -m dgsdp.quickstart"]  # what the getting-started page shows it print
+    checkpoint = re.search(r"^checkpoint: (\S+/outputs/quickstart/[^/]+/train/checkpoints/last\.ckpt)$",
+                           quickstart["stdout"], flags=re.M)  # fmt: skip
+    assert checkpoint and Path(checkpoint[1]).is_file(), quickstart["stdout"][-2000:]
+    assert f"next: dgsdp-generate checkpoint={checkpoint[1]} music=<your song>" in quickstart["stdout"]
+    dances = Path(checkpoint[1]).parents[2] / "dances"
+    for kind in ("genre", "free_text"):
+        suffixes = {p.suffix for p in (dances / kind).iterdir()}
+        assert {".pkl", ".bvh", ".npy"} <= suffixes and suffixes & {".mp4", ".gif"}, (kind, suffixes)
     listed = {c.runner for c in ALL}
     assert listed <= {"run", "config", "help", "install", "docs", "studio", "skip"}
