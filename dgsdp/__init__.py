@@ -1,6 +1,6 @@
 """dgsdp: music- and style-conditioned dance generation (EDGE and DGSDP as one experiment framework).
 
-The Python API (README, "Python API")::
+The Python API (README, "Python API"; reference: docs/reference/api.md)::
 
     from dgsdp import DanceGenerator
     gen = DanceGenerator.from_checkpoint("model.ckpt")
@@ -20,11 +20,12 @@ __version__ = "0.1.0"
 _API = {
     "DanceGenerator": "dgsdp.generation.pipeline",
     "Dance": "dgsdp.generation.dance",
+    "EditSettings": "dgsdp.generation.pipeline",
     "load_model": "dgsdp.trained",
     "TrainedModel": "dgsdp.trained",
     "SamplingSettings": "dgsdp.sampling",
 }
-__all__ = ["Dance", "DanceGenerator", "SamplingSettings", "TrainedModel", "__version__", "load_model"]
+__all__ = ["Dance", "DanceGenerator", "EditSettings", "SamplingSettings", "TrainedModel", "__version__", "load_model"]
 
 
 def __getattr__(name: str) -> Any:

@@ -26,7 +26,7 @@ from dgsdp.utils.logs import lightning_logs_through_root
 FREE_TEXT_STYLE = "sharp, powerful krump with heavy chest pops and arm swings"
 # The recipe is experiment=quickstart_row9 (conf/experiment/; one change per row in sweeps/quickstart.yaml); its
 # thousand steps are not the papers' long runs. Each choice was measured on the same data and seed
-# (docs/benchmarks.md, "Real songs" and "The model's own timing"):
+# (docs/notes/2026-11-23-real-songs.md and docs/notes/2026-11-25-the-models-own-timing.md):
 # - Adan lr 1e-3 instead of 2e-4: the validation loss after 171 steps was 0.23 against 0.41;
 # - a weight average over the last ~50 steps (EMA decay 0.98) instead of ~200 (0.995), which in a 500-step run
 #   still averages in the first, motionless steps;

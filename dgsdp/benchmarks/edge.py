@@ -81,7 +81,7 @@ def run_sampling(edge_src: str, *, size: str, features: int, seconds: float, rep
         presets = {
             "dgsdp default": ("dgsdp", SamplingSettings()),
             "dgsdp sampling=edge": ("dgsdp", SamplingSettings.from_config(compose_config("generate", ["sampling=edge"]).sampling)),
-            # the CPU switches measured against the default (docs/benchmarks.md has their quality)
+            # the CPU switches measured against the default (docs/sampling.md has their quality)
             "dgsdp default, bf16": ("dgsdp", SamplingSettings(bf16=True)),
             "dgsdp 5 steps, bf16": ("dgsdp", SamplingSettings(steps=5, bf16=True)),
             # a guidance-distilled student (docs/distillation.md has its quality)

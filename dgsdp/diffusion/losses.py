@@ -8,7 +8,7 @@
 - pause (in neither paper; weight 0 = off): the velocity term's error again, weighted per frame by how still the
   true motion is there, ``relu(1 - speed / window mean speed)`` (speed: the mean absolute first difference of the
   147 channels), so that moving where the training dance holds still costs more. Training dances hold still on
-  the beat; the term is a recipe choice for teaching a short run where to pause (docs/benchmarks.md).
+  the beat; the term is a recipe choice for teaching a short run where to pause (docs/notes/2026-11-25-the-models-own-timing.md).
 
 FK runs on unnormalised values (the normaliser is passed in), so the FK and foot terms are in metres. EDGE runs
 FK on normalised values; its author reported no difference. Unnormalising keeps the joint positions physical.

@@ -10,7 +10,7 @@ window after each step. Neighbouring windows therefore end on the same motion an
 EDGE (``longform="edge"``, the ``sampling=edge`` preset) instead starts every window from its own noise,
 overwrites each window's first half with its neighbour's state after every step but the last, never fuses the x0
 predictions, and cross-fades the final windows: with the quickstart model on real songs that left joint speed around the window
-boundaries up to 1.43x the dance's average (seam ratio, docs/benchmarks.md); fused windows give 0.42-0.59x (below
+boundaries up to 1.43x the dance's average (seam ratio, docs/notes/2026-11-23-real-songs.md); fused windows give 0.42-0.59x (below
 1 because where a weak model's neighbouring windows disagree, the blend between them adds motion away from the
 boundaries). The stitched result is cropped to the requested length. A motion shorter than one window is sampled
 as one padded window and cropped.

@@ -267,6 +267,7 @@ class DanceGenerator:
 
     @property
     def style_dim(self) -> int:
+        """The size of the model's style vector (0 for a model without style)."""
         return int(self.model.style_dim)
 
     def embedder(self) -> Any:

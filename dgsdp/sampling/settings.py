@@ -23,7 +23,7 @@ class GuidanceSettings:
 
     # The weight on the music: 1 = plain conditional sampling; above 1 the dance follows the music more strongly, at
     # the risk of exaggerated motion where the song is unlike the training music. 2, the papers' weight, chosen on
-    # the quick start's model over 34 + 34 real songs (docs/benchmarks.md, "The model's own timing"; 2.5 before).
+    # the quick start's model over 34 + 34 real songs (docs/notes/2026-11-25-the-models-own-timing.md; 2.5 before).
     music: float = 2.0
     style: float = 1.0  # only used by models trained with style dropout (diffusion.style_drop_prob > 0)
     longform_ramp_fraction: float = 0.5  # dances longer than one window: weights rise from 0 over this fraction

@@ -71,6 +71,7 @@ class TrainedModel(nn.Module):
 
     # --- state -------------------------------------------------------------------------------------------
     def set_style_bank(self, bank: StyleBank | None) -> None:
+        """Copy a style bank (one vector per style, with its genre) into the model; None keeps the current one."""
         if bank is None:
             return
         if bank.vectors.shape != self.style_vectors.shape:
@@ -118,6 +119,7 @@ class TrainedModel(nn.Module):
 
     # --- sampling ----------------------------------------------------------------------------------------
     def sampler(self, use_ema: bool = True) -> Sampler:
+        """A :class:`~dgsdp.sampling.Sampler` over the EMA weights (``use_ema=False``: the trained weights)."""
         denoiser = self.ema.module if use_ema else self.denoiser
         return Sampler(denoiser, self.diffusion, style_guidance=self.spec.conditioning.style_guidance)
 

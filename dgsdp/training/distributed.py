@@ -36,7 +36,7 @@ def precision_for(accelerator: str, gpu_precision: str = "bf16-mixed") -> str:
     """``gpu_precision`` on GPUs, ``32-true`` on CPUs; ``auto`` follows whether CUDA is available. On a CPU, bf16
     autocast (``trainer.precision=bf16-mixed``) is a choice, not the default: it is faster only where the CPU has
     native bf16 instructions (AVX512-BF16 or AMX: 1.5-1.8x for a paper-size step on 2 cores of an AMD EPYC Zen 4,
-    docs/benchmarks.md), slower elsewhere, and numerically different from float32. Used by ``conf/trainer/ddp.yaml`` as
+    docs/notes/2026-11-24-against-edge.md), slower elsewhere, and numerically different from float32. Used by ``conf/trainer/ddp.yaml`` as
     ``${dgsdp_precision:${.accelerator}}``."""
     accelerator = str(accelerator).lower()
     on_gpu = accelerator in ("gpu", "cuda") or (accelerator == "auto" and torch.cuda.is_available())

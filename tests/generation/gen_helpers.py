@@ -75,8 +75,9 @@ def make_tiny_dataset(root, seconds: float = 8.0) -> None:
                 write_click_song(root / "wavs" / f"{music_id}.wav", seconds)
 
 
-def train_tiny_checkpoint(tmp, overrides: tuple[str, ...] = ()) -> str:
-    """Train the debug=tiny model for a few steps on a hand-made dataset; returns the checkpoint path."""
+def train_tiny_checkpoint(tmp, overrides: tuple[str, ...] = (), style: str = "onehot") -> str:
+    """Train the debug=tiny model for a few steps on a hand-made dataset (in ``tmp / "data"``); returns the
+    checkpoint path. ``style="prompt"``: a model that also takes free-text styles (the bundled MiniLM)."""
     from hydra import compose, initialize_config_dir
 
     from dgsdp.cli.train import train
@@ -87,7 +88,7 @@ def train_tiny_checkpoint(tmp, overrides: tuple[str, ...] = ()) -> str:
         cfg = compose(
             "train",
             overrides=[
-                "debug=tiny", "style=onehot", "logger=none", f"data.root={tmp / 'data'}", "data.synthetic=null",
+                "debug=tiny", f"style={style}", "logger=none", f"data.root={tmp / 'data'}", "data.synthetic=null",
                 f"paths.cache_dir={tmp / 'cache'}", f"paths.output_dir={tmp / 'run'}", "trainer.max_steps=2",
                 "~callbacks.progress", "run_name=tiny", *overrides,
             ],
