@@ -56,12 +56,12 @@ TORCH_OPCODES = frozenset(
 )
 # Tensor rebuilds whose (storage, offset, size, stride, ...) arguments are checked against their storage.
 VIEW_REBUILDS = frozenset(f"torch._utils._rebuild_tensor{v}" for v in ("", "_v2", "_v3"))
+FROM_TYPE_REBUILD = "torch._tensor._rebuild_from_type_v2"  # tensor subclasses: calls another rebuild itself
 # Rebuilds that only wrap a tensor made by one of the above.
 WRAPPING_REBUILDS = frozenset(
     (
         "torch._utils._rebuild_parameter",
         "torch._utils._rebuild_parameter_with_state",
-        "torch._tensor._rebuild_from_type_v2",
     )
 )
 MAX_DIMS = 64
@@ -286,7 +286,13 @@ class _PickleScan:
         name = func.value if func.kind == "global" else None
         items = args.children if args.kind == "tuple" else None
         if name in VIEW_REBUILDS:
-            self.check_view(items)
+            self.check_view(
+                items, _dtype_itemsize(items[6]) if name.endswith("_v3") and items and len(items) > 6 else 0
+            )
+        elif name == FROM_TYPE_REBUILD:  # (rebuild function, tensor type, its arguments, state): torch calls it
+            if not items or len(items) < 3 or items[0].kind != "global" or items[0].value == FROM_TYPE_REBUILD:
+                raise _Refused(f"it calls {FROM_TYPE_REBUILD} without a tensor rebuild and its arguments")
+            self.check_call(items[0], items[2])
         elif name in WRAPPING_REBUILDS:
             pass  # wraps a tensor built (and checked) by one of the above
         elif name is not None and name.startswith(("torch._utils._rebuild", "torch._tensor._rebuild")):
@@ -307,10 +313,14 @@ class _PickleScan:
         if state.kind == "tuple" and state.children and state.children[0].kind == "storage":
             self.check_view(state.children)
 
-    def check_view(self, items: list[_Node] | None) -> None:
+    def check_view(self, items: list[_Node] | None, dtype_itemsize: int = 0) -> None:
+        """A view (storage, offset, size, stride, ...) within its storage and the file; ``dtype_itemsize``: the
+        element size of a view with its own dtype (``_rebuild_tensor_v3``) over the storage's bytes."""
         if not items or len(items) < 4 or items[0].kind != "storage":
             raise _Refused("it rebuilds a tensor without a storage, offset, size and stride")
         numel, itemsize = items[0].value
+        if dtype_itemsize:
+            numel, itemsize = numel * itemsize // dtype_itemsize, dtype_itemsize
         offset = items[1].value if items[1].kind == "int" else None
         size, stride = (_int_tuple(n) for n in items[2:4])
         if offset is None or size is None or stride is None or len(size) != len(stride) or len(size) > MAX_DIMS:
@@ -349,7 +359,16 @@ def _itemsize(storage_type: str) -> int:
 _STORAGE_ITEMSIZES = {
     f"torch.{name}": dtype.itemsize for dtype, name in torch.storage._dtype_to_storage_type_map().items()
 }
-_STORAGE_ITEMSIZES["torch.UntypedStorage"] = 1
+_STORAGE_ITEMSIZES.update({"torch.UntypedStorage": 1, "torch.storage.UntypedStorage": 1})
+
+
+def _dtype_itemsize(node: _Node) -> int:
+    """Bytes per element of a dtype global (``torch.float32``)."""
+    module, _, name = str(node.value).rpartition(".")
+    dtype = getattr(torch, name, None) if node.kind == "global" and module == "torch" else None
+    if not isinstance(dtype, torch.dtype):
+        raise _Refused(f"it rebuilds a tensor with an unknown dtype {node.value}")
+    return dtype.itemsize
 
 
 def _int_tuple(node: _Node) -> tuple[int, ...] | None:

@@ -137,6 +137,20 @@ def _edge_scaler_with(**attributes) -> Callable[[Path], Path]:
     return write
 
 
+def wrapped_broadcast_view(path: Path) -> Path:
+    """The stride-0 view inside ``torch._tensor._rebuild_from_type_v2`` (the rebuild of tensor subclasses), which
+    calls the inner rebuild itself."""
+    inner = b_global("torch._utils", "_rebuild_tensor_v2")
+    ordered = b_global("collections", "OrderedDict") + P.EMPTY_TUPLE + P.REDUCE
+    view = b_tuple(b_storage(1), b_int(0), b_tuple(b_int(2**50)), b_tuple(b_int(0)), P.NEWFALSE, ordered)
+    call = (
+        b_global("torch._tensor", "_rebuild_from_type_v2")
+        + b_tuple(inner, b_global("torch", "Tensor"), view, P.EMPTY_DICT)
+        + P.REDUCE
+    )
+    return torch_zip(path, pickled(b_dict((b_str("w"), call))), {"0": bytes(4)})
+
+
 def huge_storage(path: Path) -> Path:
     """A storage declared with 2^50 floats in a file of a few hundred bytes."""
     return torch_zip(path, pickled(b_dict((b_str("w"), b_tensor(b_storage(2**50), (4,), (1,))))), {"0": bytes(16)})
@@ -194,6 +208,7 @@ HOSTILE: dict[str, tuple[Callable[[Path], Path], str]] = {
     "stride-0 view of 2^50": (broadcast_view, "larger than the whole"),
     "scaler clip is a tensor": (_edge_scaler_with(clip=torch.ones(2)), "clip"),
     "scaler feature_range of strings": (_edge_scaler_with(feature_range=("a", "b")), "feature_range"),
+    "stride-0 view in a subclass rebuild": (wrapped_broadcast_view, "larger than the whole"),
     "storage of 2^50 floats": (huge_storage, "bytes of tensor storage"),
     "view past its storage": (view_past_storage, "reaches element 999"),
     "zip bomb": (zip_bomb, "zip bomb"),
