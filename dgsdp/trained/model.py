@@ -3,8 +3,10 @@ normaliser, the floor height and the style bank, loaded from a checkpoint and ch
 
 Everything the model needs at generation time is in its state dict as plain tensors (normaliser statistics,
 style bank) and in its :class:`~dgsdp.trained.spec.RunSpec`, stored as plain data in ``hyper_parameters``.
-Checkpoints therefore load with ``torch.load(..., weights_only=True)`` and without this package's classes, and
-their configs are data: parts are built only from the project's registered classes (:mod:`dgsdp.registry`).
+Checkpoints therefore load with weights only, after a bounded scan of the file
+(:func:`dgsdp.utils.checkpoint_file.load_checkpoint`), without this package's classes, and their configs are data:
+parts are built only from the project's registered classes (:mod:`dgsdp.registry`), and only once their sizes
+match the stored weights (:func:`check_weights`).
 Training (:class:`dgsdp.training.module.DanceDiffusion`, a LightningModule) builds on this class; nothing here
 imports Lightning.
 """

@@ -247,3 +247,37 @@ def test_entry_points_print_one_error_and_exit_nonzero(files, tmp_path):
         assert result["seconds"] < SECONDS, f"{name}: {result['seconds']:.1f} s"
         TALLY["refused cleanly"] += 1
     assert not (tmp_path / "o.ckpt").exists() and not (tmp_path / "out").exists()
+
+
+def test_resume_checks_the_configured_model_against_the_weights(tmp_path):
+    """train.py's resume compares the configured run's layout with the checkpoint's weights before building it."""
+    sys.path.insert(0, str(REPO / "tests" / "generation"))
+    from gen_helpers import tiny_model
+
+    from dgsdp.trained import check_weights
+
+    model = tiny_model()
+    state = dict(model.state_dict())
+    check_weights(model.spec, state, "ok.ckpt")  # the run's own weights pass
+    name = next(k for k, v in state.items() if k.startswith("denoiser.") and v.ndim == 2)
+    state[name] = torch.zeros(state[name].shape[0] + 1, state[name].shape[1])
+    del state["ema.n_averaged"]
+    with pytest.raises(CheckpointError) as exc:
+        check_weights(model.spec, state, "other.ckpt")
+    refused(exc, "other.ckpt", f"{name} ", "(the file holds", "weights the file does not hold: ema.n_averaged")
+
+
+def test_one_torch_load_in_the_package():
+    """Every checkpoint file goes through load_checkpoint: the package has no other torch.load call."""
+    calls = [
+        f"{py.relative_to(REPO)}:{i}"
+        for py in (REPO / "dgsdp").rglob("*.py")
+        for i, line in enumerate(py.read_text().splitlines(), 1)
+        if re.search(r"torch\.load\(\s*[^w)]", line) or re.search(r"\bfrom torch import .*\bload\b", line)
+    ]
+    assert calls == ["dgsdp/utils/checkpoint_file.py:" + str(_load_line())], calls
+
+
+def _load_line() -> int:
+    source = (REPO / "dgsdp" / "utils" / "checkpoint_file.py").read_text().splitlines()
+    return next(i for i, line in enumerate(source, 1) if "return torch.load(p, " in line)
