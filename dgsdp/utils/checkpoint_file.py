@@ -389,17 +389,18 @@ def _ints(node: _Node) -> Iterator[int]:
 
 
 # --- files ---------------------------------------------------------------------------------------------------------
-def scan_checkpoint(path: str | Path, limits: ScanLimits = LIMITS) -> ScanReport:
+def scan_checkpoint(path: str | Path, limits: ScanLimits = LIMITS, what: str = "checkpoint") -> ScanReport:
     """Check a checkpoint file's pickle stream against ``limits`` without building anything from it.
 
-    Raises a CheckpointError naming the file and the exceeded limit; returns the measurements otherwise."""
+    Raises a CheckpointError naming the file (``what``: its kind, for the message) and the exceeded limit; returns
+    the measurements otherwise."""
     p = Path(path)
     try:
         return _scan(p, limits)
     except _Refused as e:
-        raise CheckpointError(f"{p} was refused before loading: {e}. Nothing was loaded") from None
+        raise CheckpointError(f"cannot read {what} {p}: {e}. Nothing was loaded") from None
     except OSError as e:
-        raise CheckpointError(f"cannot read {p}: {e}") from e
+        raise CheckpointError(f"cannot read {what} {p}: {e}") from e
 
 
 def _scan(p: Path, limits: ScanLimits) -> ScanReport:
@@ -494,9 +495,9 @@ def load_checkpoint(
     if not p.is_file():
         raise CheckpointError(f"{what} {p} does not exist; check the path.{hint}")
     try:
-        scan_checkpoint(p, limits)
+        scan_checkpoint(p, limits, what)
     except CheckpointError as e:
-        raise CheckpointError(f"{what} {e}.{hint}") from None
+        raise CheckpointError(f"{e}.{hint}") from None
     try:
         with torch.serialization.safe_globals(list(safe_globals)):
             return torch.load(p, map_location=map_location, weights_only=True, mmap=mmap)
@@ -504,8 +505,8 @@ def load_checkpoint(
         found = re.search(r"GLOBAL ([\w.]+)", str(e))
         asks = f"the Python global {found.group(1)}" if found else "a Python object other than tensors"
         raise UnsafeCheckpointError(
-            f"{what} {p} was refused: it asks for {asks}, which could run code on this machine; nothing was "
-            f"loaded. Do not open it with a full torch.load either.{hint}"
+            f"cannot read {what} {p}: it was refused, as it asks for {asks}, which could run code on this "
+            f"machine; nothing was loaded. Do not open it with a full torch.load either.{hint}"
         ) from e
     except Exception as e:  # noqa: BLE001 - truncated or corrupt archives raise many types
         raise CheckpointError(
