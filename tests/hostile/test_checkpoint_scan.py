@@ -169,7 +169,7 @@ def _tiny_checkpoint(tmp_path: Path, **model_changes) -> Path:
 @pytest.mark.parametrize(
     ("changes", "fragment"),
     [
-        ({"d_model": 4096, "n_layers": 64, "ff_dim": 16384}, "nothing was built"),  # ~25 GB if it were built
+        ({"d_model": 4096, "n_layers": 64, "ff_dim": 16384}, "nothing was built"),  # 193 GB of weights if it were built
         ({"n_layers": 8}, "weights the file does not hold: denoiser.layers.1"),
         ({"d_model": 10**6}, "model.d_model=1,000,000 is larger than any model this project builds"),
         ({"n_layers": 10**9}, "model.n_layers=1,000,000,000 is larger"),
