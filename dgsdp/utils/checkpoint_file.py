@@ -112,6 +112,7 @@ class _PickleScan:
         self.composites: list[_Node] = []  # every node holding others (its figures are settled by finish)
         self.storages: dict[str, int] = {}  # storage key -> bytes declared
         self.memo_fetches: dict[int, int] = {}
+        self.products: dict[int, int] = {}  # id of a tuple node -> the product of its integers (int_product)
 
     # --- the machine ------------------------------------------------------------------------------------------
     def run(self, stream: Any) -> _Node:
@@ -268,10 +269,12 @@ class _PickleScan:
         itemsize = _itemsize(kind.value)
         nbytes = numel.value * itemsize
         key_text = str(key.value)
-        self.storages[key_text] = max(self.storages.get(key_text, 0), nbytes)
-        if sum(self.storages.values()) > self.report.file_bytes:
+        before = self.storages.get(key_text, 0)
+        self.storages[key_text] = max(before, nbytes)
+        self.report.storage_bytes += max(nbytes - before, 0)
+        if self.report.storage_bytes > self.report.file_bytes:
             raise _Refused(
-                f"it declares {sum(self.storages.values()):,} bytes of tensor storage in a "
+                f"it declares {self.report.storage_bytes:,} bytes of tensor storage in a "
                 f"{self.report.file_bytes:,}-byte file (storage can never exceed the file's own size)"
             )
         if len(items) == 6 and items[5].kind == "tuple":  # legacy files: a view into a larger storage
@@ -299,14 +302,26 @@ class _PickleScan:
             raise _Refused(f"it builds tensors with {name} (sparse, quantised, meta or other tensors), which "
                            "model checkpoints never hold")  # fmt: skip
         else:
-            product = 1
-            for value in _ints(args):
-                product *= max(abs(value), 1)
-                if product > self.report.file_bytes:
-                    raise _Refused(
-                        f"it calls {name or 'a constructor'} with sizes asking for more than the file's "
-                        f"{self.report.file_bytes:,} bytes"
-                    )
+            if self.int_product(args) > self.report.file_bytes:
+                raise _Refused(
+                    f"it calls {name or 'a constructor'} with sizes asking for more than the file's "
+                    f"{self.report.file_bytes:,} bytes"
+                )
+
+    def int_product(self, node: _Node) -> int:
+        """The product of the integers in a call's arguments, inside tuples too, capped above the file's size.
+        Remembered per tuple (tuples never change), so arguments shared through the memo cost nothing more."""
+        if node.kind == "int":
+            return max(abs(node.value), 1)
+        if node.kind != "tuple" or not node.children:
+            return 1
+        known = self.products.get(id(node))
+        if known is None:
+            known = 1
+            for child in node.children:  # depth is bounded: tuples are checked when made
+                known = min(known * self.int_product(child), self.report.file_bytes + 1)
+            self.products[id(node)] = known
+        return known
 
     def check_build(self, target: _Node, state: _Node) -> None:
         """``BUILD`` on a tensor with ``(storage, offset, size, stride)``: the legacy way of making a view."""
@@ -323,7 +338,7 @@ class _PickleScan:
             numel, itemsize = numel * itemsize // dtype_itemsize, dtype_itemsize
         offset = items[1].value if items[1].kind == "int" else None
         size, stride = (_int_tuple(n) for n in items[2:4])
-        if offset is None or size is None or stride is None or len(size) != len(stride) or len(size) > MAX_DIMS:
+        if offset is None or size is None or stride is None or len(size) != len(stride):
             raise _Refused("it rebuilds a tensor whose offset, size or stride are not plain integers")
         if offset < 0 or any(s < 0 for s in size) or any(s < 0 for s in stride):
             raise _Refused("it rebuilds a tensor with a negative offset, size or stride")
@@ -372,20 +387,10 @@ def _dtype_itemsize(node: _Node) -> int:
 
 
 def _int_tuple(node: _Node) -> tuple[int, ...] | None:
-    if node.kind != "tuple" or any(c.kind != "int" for c in node.children or ()):
+    """A tensor's size or stride: a tuple of at most MAX_DIMS integers, or None."""
+    if node.kind != "tuple" or len(node.children or ()) > MAX_DIMS or any(c.kind != "int" for c in node.children or ()):
         return None
     return tuple(c.value for c in node.children or ())
-
-
-def _ints(node: _Node) -> Iterator[int]:
-    """The integers in a call's arguments, inside tuples too (iteratively: depth is already bounded)."""
-    todo = [node]
-    while todo:
-        n = todo.pop()
-        if n.kind == "int":
-            yield n.value
-        elif n.kind == "tuple":
-            todo.extend(n.children or ())
 
 
 # --- files ---------------------------------------------------------------------------------------------------------
@@ -413,7 +418,6 @@ def _scan(p: Path, limits: ScanLimits) -> ScanReport:
     else:
         _scan_legacy(p, scan)
     report.storages = len(scan.storages)
-    report.storage_bytes = sum(scan.storages.values())
     return report
 
 
@@ -470,7 +474,7 @@ def _scan_legacy(p: Path, scan: _PickleScan) -> None:
             scan.run(stream)
         remaining = len(stream) - stream.tell()
     scan.finish()
-    declared = sum(scan.storages.values())
+    declared = scan.report.storage_bytes
     if declared > remaining:
         raise _Refused(f"it declares {declared:,} bytes of tensor storage but only {remaining:,} bytes follow")
 

@@ -5,7 +5,7 @@ them (``runpy``, ``__main__``), so that the heavy imports are paid once. Usage:
 
 jobs.json: a list of {"name", "script" or "module", "argv"}. results.json gets, per name, the exit code
 (0 when the entry point returns, the SystemExit code otherwise, a text on any other exception) and what it wrote
-to stdout and stderr, and the seconds it took.
+to stdout and stderr, the seconds it took and the CPU seconds this process spent on it.
 """
 
 import contextlib
@@ -22,7 +22,7 @@ def run(job: dict) -> dict:
     target = job.get("script") or job["module"]
     sys.argv = [target, *job["argv"]]
     code: int | str = 0
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             if "script" in job:
@@ -39,8 +39,14 @@ def run(job: dict) -> dict:
         GlobalHydra.instance().clear()
     except ImportError:
         pass
-    seconds = time.perf_counter() - start
-    return {"code": code, "stdout": out.getvalue(), "stderr": err.getvalue(), "seconds": seconds}
+    seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
+    return {
+        "code": code,
+        "stdout": out.getvalue(),
+        "stderr": err.getvalue(),
+        "seconds": seconds,
+        "cpu_seconds": cpu_seconds,
+    }
 
 
 if __name__ == "__main__":

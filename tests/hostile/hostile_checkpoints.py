@@ -174,6 +174,21 @@ def many_instructions(path: Path) -> Path:
     return torch_zip(path, pickled(P.EMPTY_LIST + P.MARK + b_int(1) * 600_000 + P.APPENDS))
 
 
+def many_storages(path: Path) -> Path:
+    """60,000 empty storages (just under the instruction limit), whose data entries are missing: the scan's
+    bookkeeping must stay linear in their number."""
+    views = b"".join(b_storage(0, key=str(i)) for i in range(60_000))
+    return torch_zip(path, pickled(P.EMPTY_LIST + P.MARK + views + P.APPENDS))
+
+
+def shared_arguments(path: Path) -> Path:
+    """100,000 calls of one function on one 1,000-number tuple fetched from the memo (10^8 objects unfolded; checking
+    each call's sizes must not walk the tuple each time)."""
+    body = P.EMPTY_LIST + b_global("builtins", "bytearray") + put(0) + P.MARK + b_int(1) * 1000 + P.TUPLE + put(1)
+    body += P.MARK + (get(0) + get(1) + P.REDUCE) * 100_000 + P.APPENDS
+    return torch_zip(path, pickled(body))
+
+
 def self_containing_list(path: Path) -> Path:
     return torch_zip(path, pickled(P.EMPTY_LIST + put(0) + get(0) + P.APPEND))
 
@@ -214,11 +229,15 @@ HOSTILE: dict[str, tuple[Callable[[Path], Path], str]] = {
     "zip bomb": (zip_bomb, "zip bomb"),
     "600k instructions": (many_instructions, "instructions (the limit)"),
     "stride-0 weight": (broadcast_state, "larger than the whole"),
+    "60k empty storages": (many_storages, "data entry is missing"),
+    "100k calls sharing their arguments": (shared_arguments, "unfolds to more than"),
     "list containing itself": (self_containing_list, "contains itself"),
     "bytearray(2^40)": (bytearray_bomb, "builtins.bytearray with sizes"),
     "legacy format, huge storage": (legacy_huge_storage, "bytes of tensor storage"),
     "PK header, no zip": (not_a_checkpoint, "not a readable zip"),
 }
 """name -> (maker, a fragment of its refusal). The first five are the issue's files."""
+HEAVY = ("600k instructions", "60k empty storages", "100k calls sharing their arguments")
+"""Files that take a second or more of scanning; the scan is the same for every loader, so tests run them once."""
 EDGE_ONLY = ("stride-0 view of 2^50", "scaler clip is a tensor", "scaler feature_range of strings")
 """Files that are EDGE checkpoints (EDGE's normaliser classes): other loaders refuse them for those classes."""
