@@ -104,7 +104,7 @@ class RunSpec:
             if value is not None and (not isinstance(value, int) or value <= 0):
                 raise ConfigError(f"model.{key} must be a positive integer, got {value!r}")
         for section in ("model", "diffusion"):
-            for key, value in getattr(self, section).items():
+            for key, value in (getattr(self, section) or {}).items():
                 check_size(f"{section}.{key}", value)
         if self.model.get("d_model") and self.model.get("n_heads") and self.model["d_model"] % self.model["n_heads"]:
             raise ConfigError(
