@@ -123,6 +123,7 @@ def test_memo_reuse_is_measured_unfolded(tmp_path):
     path = made.shared_pair_key(tmp_path / "pairs.pt", levels=20)
     report = scan_checkpoint(path, ScanLimits(max_unfolded=2**22))
     assert (report.unfolded, report.depth) == (2**21 + 1, 22)
+    assert report.max_memo_fetches == 1  # each level fetches its memo entry once: fetch counts would not see it
     with pytest.raises(CheckpointError) as exc:
         scan_checkpoint(path, ScanLimits(max_unfolded=2**20))
     refused(exc, "unfolds to more than 1,048,576 objects")
