@@ -24,3 +24,7 @@ class ConfigError(DgsdpError):
 class CheckpointError(ConfigError):
     """A checkpoint cannot be used: unreadable, not one of ours, or its stored config asks for something other
     than the project's own classes (a checkpoint's config is data, never code)."""
+
+
+class UnsafeCheckpointError(CheckpointError):
+    """A checkpoint file asks for a Python global that the weights-only loader does not allow (it could run code)."""

@@ -30,7 +30,6 @@ from __future__ import annotations
 import contextlib
 import io
 import os
-import pickle
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -41,7 +40,8 @@ import torch
 from torch import nn
 
 from dgsdp.audio.base import AudioEncoder, fit_frames, resample_frames
-from dgsdp.errors import ConfigError, WeightsError
+from dgsdp.errors import CheckpointError, ConfigError, WeightsError
+from dgsdp.utils.checkpoint_file import load_checkpoint
 from dgsdp.utils.device import resolve_device
 
 JUKEBOX_SAMPLE_RATE = 44100
@@ -117,21 +117,16 @@ def _load_checkpoint_state(path: Path) -> dict[str, torch.Tensor]:
 
     OpenAI's files hold ``{"hps": dict, "model": state dict, "opt": ..., "step": int}`` in torch's pre-zip format,
     which ``weights_only=True`` reads (jukebox-infer itself loads them that way); memory mapping needs the zip format
-    and is used when the file has it. Nothing else is tried: a file that needs arbitrary objects is refused.
+    and is used when the file has it. The file is scanned first (:mod:`dgsdp.utils.checkpoint_file`); nothing else is
+    tried: a file that needs arbitrary objects is refused.
     """
     try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True, mmap=zipfile.is_zipfile(path))
-    except pickle.UnpicklingError as e:
-        raise WeightsError(
-            f"{path} was refused: it holds objects other than tensors and plain values, and loading it would run "
-            f"code from the file ({str(e).splitlines()[0][:300]}). The official Jukebox files load as tensors only; "
-            f"re-download {path.name} from {WEIGHTS_URL}."
-        ) from e
-    except (RuntimeError, ValueError, EOFError, OSError) as e:
-        raise WeightsError(
-            f"cannot read Jukebox checkpoint {path} ({type(e).__name__}: {str(e)[:300]}); it is truncated or "
-            f"corrupt. Re-download {path.name} from {WEIGHTS_URL}."
-        ) from e
+        checkpoint = load_checkpoint(
+            path, what="Jukebox checkpoint", hint=f"Re-download {path.name} from {WEIGHTS_URL}.",
+            mmap=zipfile.is_zipfile(path),
+        )  # fmt: skip
+    except CheckpointError as e:  # the weights of an encoder: the error a user meets for missing or bad weights
+        raise WeightsError(str(e)) from e
     if not isinstance(checkpoint, Mapping) or not isinstance(checkpoint.get("model"), Mapping):
         raise WeightsError(f"{path} is not a Jukebox checkpoint (no 'model' entry). Re-download it.")
     return dict(checkpoint["model"])

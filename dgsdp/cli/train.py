@@ -23,7 +23,7 @@ from dgsdp.cli.runtime import run_main
 from dgsdp.data.datamodule import check_tempo_augment
 from dgsdp.errors import ConfigError
 from dgsdp.registry import build
-from dgsdp.trained import read_checkpoint
+from dgsdp.trained import check_weights, read_checkpoint
 from dgsdp.trained.spec import RunSpec
 from dgsdp.training.distill import (
     DistillSettings,
@@ -154,6 +154,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     if resume is not None:
         saved = RunSpec.from_checkpoint(resume, str(cfg.ckpt_path))
         saved.check_resumable_with(spec, str(cfg.ckpt_path))
+        check_weights(spec, resume.get("state_dict"), str(cfg.ckpt_path))  # before the model is built
         _resume_logger_ids(cfg, resume)
     if teacher is None:
         model = DanceDiffusion(spec)

@@ -3,8 +3,10 @@ normaliser, the floor height and the style bank, loaded from a checkpoint and ch
 
 Everything the model needs at generation time is in its state dict as plain tensors (normaliser statistics,
 style bank) and in its :class:`~dgsdp.trained.spec.RunSpec`, stored as plain data in ``hyper_parameters``.
-Checkpoints therefore load with ``torch.load(..., weights_only=True)`` and without this package's classes, and
-their configs are data: parts are built only from the project's registered classes (:mod:`dgsdp.registry`).
+Checkpoints therefore load with weights only, after a bounded scan of the file
+(:func:`dgsdp.utils.checkpoint_file.load_checkpoint`), without this package's classes, and their configs are data:
+parts are built only from the project's registered classes (:mod:`dgsdp.registry`), and only once their sizes
+match the stored weights (:func:`check_weights`).
 Training (:class:`dgsdp.training.module.DanceDiffusion`, a LightningModule) builds on this class; nothing here
 imports Lightning.
 """
@@ -12,7 +14,6 @@ imports Lightning.
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,7 @@ from dgsdp.registry import Source
 from dgsdp.sampling import Sampler
 from dgsdp.style.embeddings import StyleBank
 from dgsdp.trained.spec import RunSpec
+from dgsdp.utils.checkpoint_file import load_checkpoint, reading
 
 CHECKPOINT_FORMAT = 2
 MAX_FLOOR_M = 10.0  # a stored floor height further from z = 0 is refused as damaged data
@@ -151,72 +153,80 @@ def _default_floor_height(module: torch.nn.Module, state: dict[str, Any], prefix
         state[key] = module.floor_height.detach().clone()
 
 
-def _load_failure(error: Exception, max_chars: int = 200) -> str:
-    """What ``torch.load(weights_only=True)`` said, in one short line: the object it refused for a pickled
-    object (torch's own advice, to load the file as a full pickle, would run the file's code: never given here),
-    else the first line of its message, cut at a word."""
-    text = re.sub(r"\x1b\[[0-9;]*m", "", str(error)).strip()
-    refused = re.search(r"Unsupported global: GLOBAL (\S+)", text)
-    if refused:
-        return f"it holds a pickled {refused[1].rstrip('.,;')} object"
-    if "weights only load failed" in text.lower():
-        return "it holds pickled objects"
-    first = text.splitlines()[0].strip() if text else ""
-    if len(first) > max_chars:
-        first = first[:max_chars].rsplit(" ", 1)[0].rstrip(".,;:") + " ..."
-    return f"{type(error).__name__}: {first}" if first else type(error).__name__
-
-
 def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
     """A checkpoint file as plain data (tensors and builtins only), or one clear CheckpointError."""
     p = Path(path).expanduser()
-    if not p.is_file():
-        raise CheckpointError(f"checkpoint {p} does not exist; train one with 'python train.py' or check the path")
-    try:
-        ckpt = torch.load(p, map_location=map_location, weights_only=True)
-    except Exception as e:  # noqa: BLE001 - any failure here means the file is not a usable checkpoint
-        raise CheckpointError(
-            f"cannot read checkpoint {p}: {_load_failure(e)}. It is damaged, not a PyTorch checkpoint, "
-            "or holds objects other than tensors and plain values (which are never loaded)"
-        ) from e
+    ckpt = load_checkpoint(
+        p, what="checkpoint", map_location=map_location,
+        hint="Use a checkpoint written by 'python train.py' or by the EDGE import.",
+    )  # fmt: skip
     if not isinstance(ckpt, dict) or "hyper_parameters" not in ckpt or "state_dict" not in ckpt:
         raise CheckpointError(f"{p} is not a dgsdp checkpoint (no hyper_parameters/state_dict)")
     return ckpt
 
 
+def check_weights(spec: RunSpec, state: Any, source: str) -> None:
+    """Refuse a checkpoint whose stored config does not describe its stored weights, before any model is built:
+    the model is laid out on the meta device (no memory) and each weight's shape compared with the file's. A
+    config asking for a far larger model than its weights (a 2 MB file with d_model=8192) stops here, not after
+    allocating that model."""
+    if not isinstance(state, Mapping) or not all(isinstance(k, str) and torch.is_tensor(v) for k, v in state.items()):
+        raise CheckpointError(f"checkpoint {source}: state_dict must map names to tensors")
+    with torch.device("meta"):
+        layout = TrainedModel(spec, source="checkpoint").state_dict()
+    optional = ("floor_height", "tempo_range_bpm")  # older checkpoints lack them; they load defaults
+    missing = [k for k in layout if k not in state and k not in optional]
+    wrong = [
+        f"{k} {tuple(v.shape)} (the file holds {tuple(state[k].shape)})"
+        for k, v in layout.items()
+        if k in state and state[k].shape != v.shape
+    ]
+    if missing or wrong:
+        what = [f"weights the file does not hold: {', '.join(missing[:5])}"] if missing else []
+        what += [f"other shapes: {', '.join(wrong[:5])}"] if wrong else []
+        raise CheckpointError(
+            f"checkpoint {source} does not match its own configuration, which asks for {'; '.join(what)}"
+            + (f" ({len(missing) + len(wrong)} weights in all)" if len(missing) + len(wrong) > 5 else "")
+            + ". The file is damaged or not a dgsdp checkpoint; nothing was built"
+        )
+
+
 def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> TrainedModel:
-    """Rebuild a trained model from a checkpoint (plain tensors + its run spec as data), EMA weights included."""
+    """Rebuild a trained model from a checkpoint (plain tensors + its run spec as data), EMA weights included.
+
+    Every check runs before the model is built (sizes against the weights: :func:`check_weights`), and anything a
+    malformed file makes them raise is one CheckpointError."""
     ckpt = read_checkpoint(path, map_location)
     source = str(Path(path).expanduser())
-    spec = RunSpec.from_checkpoint(ckpt, source)
-    model = TrainedModel(spec, source="checkpoint")
-    state = ckpt["state_dict"]
-    if not isinstance(state, Mapping) or not all(torch.is_tensor(v) for v in state.values()):
-        raise CheckpointError(f"checkpoint {source}: state_dict must map names to tensors")
-    if "floor_height" in state:
+    with reading(source):
+        spec = RunSpec.from_checkpoint(ckpt, source)
+        state = ckpt["state_dict"]
+        check_weights(spec, state, source)
+        if "floor_height" in state:
+            try:
+                check_floor_height(state["floor_height"], "its floor_height")
+            except ConfigError as e:
+                raise CheckpointError(f"checkpoint {source}: {e}; the file is damaged or not a dgsdp checkpoint") from e
+        if "tempo_range_bpm" in state and tuple(state["tempo_range_bpm"].shape) == (2,):  # others: load_state_dict
+            try:
+                check_tempo_range(state["tempo_range_bpm"], "its tempo_range_bpm")
+            except ConfigError as e:
+                raise CheckpointError(f"checkpoint {source}: {e}; the file is damaged or not a dgsdp checkpoint") from e
+        model = TrainedModel(spec, source="checkpoint")
         try:
-            check_floor_height(state["floor_height"], "its floor_height")
-        except ConfigError as e:
-            raise CheckpointError(f"checkpoint {source}: {e}; the file is damaged or not a dgsdp checkpoint") from e
-    if "tempo_range_bpm" in state and tuple(state["tempo_range_bpm"].shape) == (2,):  # other shapes: load_state_dict
-        try:
-            check_tempo_range(state["tempo_range_bpm"], "its tempo_range_bpm")
-        except ConfigError as e:
-            raise CheckpointError(f"checkpoint {source}: {e}; the file is damaged or not a dgsdp checkpoint") from e
-    try:
-        model.load_state_dict(state)
-    except RuntimeError as e:
-        raise CheckpointError(f"checkpoint {source} does not match its own configuration: {e}") from e
-    expected = model.state_dict()  # after loading: a shape mismatch is reported first, by load_state_dict
-    for name, value in state.items():
-        want = expected.get(name)
-        if (
-            want is not None
-            and value.dtype != want.dtype
-            and not (value.is_floating_point() and want.is_floating_point())
-        ):
-            raise CheckpointError(
-                f"checkpoint {source}: {name} is {value.dtype}, the model needs {want.dtype}; the file is damaged or "
-                "not a dgsdp checkpoint"
-            )
+            model.load_state_dict(state)
+        except RuntimeError as e:
+            raise CheckpointError(f"checkpoint {source} does not match its own configuration: {e}") from e
+        expected = model.state_dict()  # after loading: a shape mismatch is reported first, by load_state_dict
+        for name, value in state.items():
+            want = expected.get(name)
+            if (
+                want is not None
+                and value.dtype != want.dtype
+                and not (value.is_floating_point() and want.is_floating_point())
+            ):
+                raise CheckpointError(
+                    f"checkpoint {source}: {name} is {value.dtype}, the model needs {want.dtype}; the file is damaged "
+                    "or not a dgsdp checkpoint"
+                )
     return model.eval()

@@ -28,6 +28,14 @@ SPEC_FORMAT = 2
 LOCAL_KEYS = ("cache_dir", "device")
 # Denoiser settings that change no weight shape: a run may resume with other values.
 SHAPE_FREE_MODEL_KEYS = ("dropout", "gradient_checkpointing")
+# The largest sizes a run may ask for (the papers' model: d_model 512, 8 layers, 8 heads, feed-forward 1024, 150
+# frames, 1000 diffusion steps, Jukebox's 4800-d features), so that a stored config cannot make a model or schedule
+# of unbounded size; any other integer setting of the model or diffusion is bounded by MAX_OTHER_SETTING.
+MAX_SIZES = {
+    "d_model": 8192, "n_layers": 128, "n_heads": 256, "ff_dim": 65536, "seq_len": 36_000, "music_encoder_layers": 128,
+    "num_steps": 100_000, "audio_dim": 16384, "style_dim": 8192, "style_bank_size": 100_000, "n_genres": 10_000,
+}  # fmt: skip
+MAX_OTHER_SETTING = 100_000
 # The buildable parts of a run and the registry kind each must be.
 PART_KINDS: dict[str, Kind] = {
     "model": "model", "diffusion": "diffusion", "loss": "loss", "optimizer": "optimizer", "audio": "audio",
@@ -51,6 +59,7 @@ class Conditioning:
         for name in ("audio_dim", "style_dim", "style_bank_size", "n_genres"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"conditioning.{name} must be >= 0, got {getattr(self, name)}")
+            check_size(f"conditioning.{name}", getattr(self, name))
         for name in ("music_drop_prob", "style_drop_prob"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ConfigError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
@@ -94,6 +103,9 @@ class RunSpec:
             value = self.model.get(key)
             if value is not None and (not isinstance(value, int) or value <= 0):
                 raise ConfigError(f"model.{key} must be a positive integer, got {value!r}")
+        for section in ("model", "diffusion"):
+            for key, value in (getattr(self, section) or {}).items():
+                check_size(f"{section}.{key}", value)
         if self.model.get("d_model") and self.model.get("n_heads") and self.model["d_model"] % self.model["n_heads"]:
             raise ConfigError(
                 f"model.d_model={self.model['d_model']} must be a multiple of model.n_heads={self.model['n_heads']}"
@@ -354,6 +366,15 @@ class RunSpec:
                 + "\nUse the same config groups (audio, style, model, optimizer, ...) as the checkpoint's run, or "
                 "start a new run."
             )
+
+
+def check_size(name: str, value: Any) -> None:
+    """Refuse an integer setting above its bound in MAX_SIZES (MAX_OTHER_SETTING for the others)."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        return
+    limit = MAX_SIZES.get(name.rpartition(".")[2], MAX_OTHER_SETTING)
+    if value > limit:
+        raise ConfigError(f"{name}={value:,} is larger than any model this project builds (at most {limit:,})")
 
 
 def _diff(a: Mapping[str, Any], b: Mapping[str, Any], prefix: str) -> list[str]:

@@ -8,7 +8,7 @@ jobs.json: a list of {"name", "script" or "module" or "entry" ("module:function"
 set while it runs), "path" (folders put first on sys.path) and "globs" ({"<word>": "pattern"}: each word of argv
 replaced by the name of the newest path matching the pattern in cwd, when the job starts). results.json gets, per name, the exit
 code (0 when the entry point returns, the SystemExit code otherwise, a text on any other exception) and what it
-wrote to stdout and stderr, and the seconds it took.
+wrote to stdout and stderr, the seconds it took and the CPU seconds this process spent on it.
 """
 
 import contextlib
@@ -69,7 +69,7 @@ def run(job: dict) -> dict:
     out, err = io.StringIO(), io.StringIO()
     target = job.get("script") or job.get("module") or job.get("entry") or job["exec"]
     code: int | str = 0
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     with _place(job), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             sys.argv = [target, *_argv(job)]
@@ -84,8 +84,14 @@ def run(job: dict) -> dict:
         GlobalHydra.instance().clear()
     except ImportError:
         pass
-    seconds = time.perf_counter() - start
-    return {"code": code, "stdout": out.getvalue(), "stderr": err.getvalue(), "seconds": seconds}
+    seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
+    return {
+        "code": code,
+        "stdout": out.getvalue(),
+        "stderr": err.getvalue(),
+        "seconds": seconds,
+        "cpu_seconds": cpu_seconds,
+    }
 
 
 if __name__ == "__main__":

@@ -98,7 +98,7 @@ def test_wrong_shapes(tmp_path):
     path = save_ckpt(tmp_path / "shapes.ckpt", state=state)
     with pytest.raises(DgsdpError) as exc:
         load_model(str(path))
-    refused(exc, str(path), "size mismatch")
+    refused(exc, str(path), "does not match its own configuration", "(the file holds")
 
 
 def test_wrong_dtypes(tmp_path):

@@ -11,8 +11,6 @@ anything is called, and the error names it. The stand-ins are then read into pla
 
 from __future__ import annotations
 
-import pickle
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +19,7 @@ from typing import Any
 import torch
 
 from dgsdp.errors import CheckpointError
+from dgsdp.utils.checkpoint_file import load_checkpoint, reading
 
 NORMALIZER_CLASS = ("dataset.preprocess", "Normalizer")
 SCALER_CLASS = ("dataset.scaler", "MinMaxScaler")
@@ -28,10 +27,6 @@ REQUIRED_KEYS = ("ema_state_dict", "model_state_dict", "normalizer")
 SCALER_TENSORS = ("scale_", "min_", "data_min_", "data_max_", "data_range_")
 SCALER_ATTRIBUTES = frozenset((*SCALER_TENSORS, "feature_range", "copy", "clip", "n_samples_seen_"))
 DOWNLOAD_HINT = "EDGE's release is fetched by download_model.sh in its repository (Stanford-TML/EDGE)"
-
-
-class UnsafeCheckpointError(CheckpointError):
-    """An EDGE-format file asks for a Python global other than EDGE's two normaliser classes."""
 
 
 @dataclass(frozen=True)
@@ -71,41 +66,30 @@ def _stand_in(module: str, name: str) -> type:
 
 def read_edge_checkpoint(path: str | Path) -> EdgeCheckpoint:
     """EDGE's checkpoint as tensors and numbers, or one CheckpointError saying what is wrong (an
-    :class:`UnsafeCheckpointError` naming the refused global for a file that would run code)."""
+    :class:`UnsafeCheckpointError` naming the refused global for a file that would run code). The file is scanned
+    before it is read (:mod:`dgsdp.utils.checkpoint_file`), and every check of what it holds runs inside the error
+    boundary."""
     p = Path(path).expanduser()
-    if not p.is_file():
-        raise CheckpointError(f"EDGE checkpoint {p} does not exist; check the path ({DOWNLOAD_HINT})")
     normalizer_cls, scaler_cls = _stand_in(*NORMALIZER_CLASS), _stand_in(*SCALER_CLASS)
-    try:
-        with torch.serialization.safe_globals([normalizer_cls, scaler_cls]):
-            raw = torch.load(p, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as e:
-        found = re.search(r"GLOBAL ([\w.]+)", str(e))
-        what = f"the Python global {found.group(1)}" if found else "a Python object other than tensors"
-        raise UnsafeCheckpointError(
-            f"{p} was refused: it asks for {what}, which could run code on this machine. EDGE's checkpoints hold "
-            "only tensors and its Normalizer/MinMaxScaler; nothing was loaded. Do not open this file with "
-            "a full torch.load or EDGE's own code either; get the checkpoint from EDGE's release"
-        ) from e
-    except Exception as e:  # noqa: BLE001 - truncated or corrupt archives raise many types
-        first = str(e).strip().splitlines()[0][:300] if str(e).strip() else ""
-        raise CheckpointError(
-            f"cannot read EDGE checkpoint {p} ({type(e).__name__}: {first}); it is truncated or not a PyTorch "
-            f"checkpoint. Download it again ({DOWNLOAD_HINT})"
-        ) from e
-    if not isinstance(raw, Mapping):
-        raise CheckpointError(f"{p} is not an EDGE checkpoint: it holds a {type(raw).__name__}, not a dict")
-    missing = [k for k in REQUIRED_KEYS if k not in raw]
-    if missing:
-        raise CheckpointError(
-            f"{p} is not an EDGE checkpoint: it has no {', '.join(missing)} (found: {', '.join(map(str, raw))})"
+    raw = load_checkpoint(
+        p, what="EDGE checkpoint", safe_globals=[normalizer_cls, scaler_cls],
+        hint=f"EDGE's checkpoints hold only tensors and its Normalizer/MinMaxScaler; get it from EDGE's release "
+        f"({DOWNLOAD_HINT}).",
+    )  # fmt: skip
+    with reading(p, "EDGE checkpoint"):
+        if not isinstance(raw, Mapping):
+            raise CheckpointError(f"{p} is not an EDGE checkpoint: it holds a {type(raw).__name__}, not a dict")
+        missing = [k for k in REQUIRED_KEYS if k not in raw]
+        if missing:
+            raise CheckpointError(
+                f"{p} is not an EDGE checkpoint: it has no {', '.join(missing)} (found: {', '.join(map(str, raw))})"
+            )
+        return EdgeCheckpoint(
+            path=p,
+            ema=_state_dict(raw["ema_state_dict"], "ema_state_dict", p),
+            model=_state_dict(raw["model_state_dict"], "model_state_dict", p),
+            scaler=_scaler(raw["normalizer"], normalizer_cls, scaler_cls, p),
         )
-    return EdgeCheckpoint(
-        path=p,
-        ema=_state_dict(raw["ema_state_dict"], "ema_state_dict", p),
-        model=_state_dict(raw["model_state_dict"], "model_state_dict", p),
-        scaler=_scaler(raw["normalizer"], normalizer_cls, scaler_cls, p),
-    )
 
 
 def _state_dict(value: Any, key: str, p: Path) -> dict[str, torch.Tensor]:
@@ -147,13 +131,19 @@ def _scaler(normalizer: Any, normalizer_cls: type, scaler_cls: type, p: Path) ->
     if len(sizes) != 1:
         raise CheckpointError(f"{where}'s statistics have different lengths: {sorted(sizes)}")
     feature_range = attributes["feature_range"]
-    if not isinstance(feature_range, tuple | list) or [float(v) for v in feature_range] != [-1.0, 1.0]:
+    if (
+        not isinstance(feature_range, tuple | list)
+        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in feature_range)
+        or [float(v) for v in feature_range] != [-1.0, 1.0]
+    ):
         raise CheckpointError(f"{where} scales to {feature_range!r}; EDGE's normaliser scales to (-1, 1)")
     if not (tensors["scale_"] > 0).all():
         raise CheckpointError(f"{where}'s scale_ is not positive on every channel")
     expected_min = -1.0 - tensors["data_min_"] * tensors["scale_"]
     if not torch.allclose(tensors["min_"], expected_min, rtol=1e-4, atol=1e-4):
         raise CheckpointError(f"{where}'s min_ does not match its data_min_ and scale_; the file is damaged")
+    if not isinstance(attributes["clip"], bool):
+        raise CheckpointError(f"{where}'s clip is a {type(attributes['clip']).__name__}, not true or false")
     n_seen = attributes["n_samples_seen_"]
     if isinstance(n_seen, bool) or not isinstance(n_seen, int):
         raise CheckpointError(f"{where}'s n_samples_seen_ is not an integer")
@@ -164,6 +154,6 @@ def _scaler(normalizer: Any, normalizer_cls: type, scaler_cls: type, p: Path) ->
         data_max=tensors["data_max_"],
         data_range=tensors["data_range_"],
         feature_range=(-1.0, 1.0),
-        clip=bool(attributes["clip"]),
+        clip=attributes["clip"],
         n_samples_seen=int(n_seen),
     )

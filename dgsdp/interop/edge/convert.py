@@ -21,6 +21,7 @@ import torch
 from dgsdp.errors import CheckpointError
 from dgsdp.interop.edge.checkpoint import EdgeCheckpoint, EdgeScaler, read_edge_checkpoint
 from dgsdp.interop.edge.weights import EDGE_HEADS, EdgeArchitecture, edge_architecture, to_dgsdp
+from dgsdp.utils.checkpoint_file import reading
 from dgsdp.utils.io import atomic_path
 
 log = logging.getLogger(__name__)
@@ -144,7 +145,8 @@ def import_edge(
     if out.is_dir():
         raise CheckpointError(f"{out} is a folder; give the path of the checkpoint file to write")
     edge = read_edge_checkpoint(source)
-    model = build_model(edge, weights, n_heads)
+    with reading(edge.path, "EDGE checkpoint"):
+        model = build_model(edge, weights, n_heads)
     if floor_height is None:
         floor_height = measure_floor(model)
         how = f"measured on {FLOOR_SAMPLES} unconditional samples"
