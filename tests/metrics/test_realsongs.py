@@ -304,10 +304,10 @@ def test_genre_speed_and_tempo_lines():
         result("c.wav", "BR", 0.5, 0.5),  # no training dances of BR: not counted
         result("d.wav", "PO", 0.0, 0.0, error="unreadable"),
     ]
-    assert rs.genre_speed_line(results, by_genre).endswith("finished=2/3 raw=1/3")
+    assert rs.genre_speed_line(results, by_genre).endswith("finished=2/4 raw=1/4")  # the error fails
     assert rs.genre_speed_line(results, None).endswith("finished=0/0 raw=0/0")
     results[0].genre = None  # a free-text style has no genre's speed to compare with
-    assert rs.genre_speed_line(results, by_genre).endswith("finished=1/2 raw=1/2")
+    assert rs.genre_speed_line(results, by_genre).endswith("finished=1/3 raw=1/3")
     results[0].genre = "PO"
     assert rs.tempo_line(results) == (
         "tempo folds (training tempi 80-135 BPM; song BPM -> BPM given): 1 of 5 songs: fast.wav 160.0->80.0"
@@ -337,6 +337,31 @@ def test_raw_summary_holds_the_model_to_its_beat_target():
     assert not rs.raw_summary(good, 0.4, None)[1]  # without the training dances' profile it cannot pass
 
 
+def test_a_dance_that_errors_is_a_failure_in_every_count():
+    def result(error: str | None = None) -> rs.SongResult:
+        r = rs.SongResult("x.wav", "BR", error=error, genre="BR")
+        if error is None:
+            r.raw = rs.SongFigures(10.0, 3.0, 0.0, 0.0, 1.0, 0.4, 0.5, 0.25, 0.6, 0.25, 8, 20, 3, [0.1] + [0.5] * 7)
+            r.figures, r.raw_checks = r.raw, r.raw.checks(rs.Reference(0.4))
+            r.checks = r.raw_checks
+        return r
+
+    good, failed = [result() for _ in range(9)], [result("unreadable") for _ in range(5)]
+    train = [0.1] + [0.5] * 7
+    assert rs.raw_summary(good, 0.4, train)[1]  # 9 of 9: the target holds without the errors
+    line, met = rs.raw_summary([*good, *failed], 0.4, train)
+    assert not met and "bas_above_shifted=9/14 bas_edge_above_shifted=9/14 errors=5 " in line
+    assert line.endswith("model_beat_target=FAIL")
+    summary = rs.summary_line([*good, *failed], 0.4)
+    assert "songs=14 pass=9 " in summary and "errors=5 " in summary
+    assert "speed_within_30pct=9/14 bas_above_shifted=9/14 bas_edge_above_shifted=9/14 " in summary
+    assert rs.style_summary_lines([*good, *failed])[0].startswith(
+        "style=BR dances=14 pass=9 errors=5 p999_missed=5 penetration_missed=5 floating_missed=5 seam_missed=5 "
+        "speed_missed=5 bas_missed=5 bas_edge_missed=5 "
+    )
+    assert rs.genre_speed_line([*good, *failed], {"BR": {"mean_speed_m_s": 0.4}}).endswith("finished=9/14 raw=9/14")
+
+
 def test_style_summary_counts_each_targets_misses_per_style():
     def result(style: str, p999: float, bas: float, error: str | None = None) -> rs.SongResult:
         r = rs.SongResult("x.wav", style, error=error, genre=style)
@@ -348,8 +373,8 @@ def test_style_summary_counts_each_targets_misses_per_style():
     results = [result("JS", 9.5, 0.3), result("JS", 4.0, 0.2), result("JS", 1.0, 0.0, error="unreadable"),
                result("BR", 3.0, 0.4)]  # fmt: skip
     assert rs.style_summary_lines(results) == [
-        "style=JS dances=3 pass=0 errors=1 p999_missed=1 penetration_missed=0 floating_missed=0 seam_missed=0 "
-        "speed_missed=0 bas_missed=1 bas_edge_missed=1 worst_p999=9.500",
+        "style=JS dances=3 pass=0 errors=1 p999_missed=2 penetration_missed=1 floating_missed=1 seam_missed=1 "
+        "speed_missed=1 bas_missed=2 bas_edge_missed=2 worst_p999=9.500",
         "style=BR dances=1 pass=1 errors=0 p999_missed=0 penetration_missed=0 floating_missed=0 seam_missed=0 "
         "speed_missed=0 bas_missed=0 bas_edge_missed=0 worst_p999=3.000",
     ]

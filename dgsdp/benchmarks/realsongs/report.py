@@ -168,8 +168,10 @@ def _profile(profiles: Sequence[Sequence[float]]) -> np.ndarray:
         return np.nanmean(values, axis=0)
 
 
-def _count(done: Sequence[SongResult], checks: str, name: str) -> str:
-    return f"{sum(getattr(r, checks).get(name, False) for r in done)}/{len(done)}"
+def _count(results: Sequence[SongResult], checks: str, name: str) -> str:
+    """How many of the dances pass one check, over every dance: a dance that errored has no checks and counts as a
+    failure in every count."""
+    return f"{sum(getattr(r, checks).get(name, False) for r in results)}/{len(results)}"
 
 
 def summary_line(results: Sequence[SongResult], train_speed: float) -> str:
@@ -192,8 +194,8 @@ def summary_line(results: Sequence[SongResult], train_speed: float) -> str:
         f"errors={len(results) - len(done)} "
         f"worst_p999={worst([f.p999_speed_m_s for f in figs])} worst_pen_cm={worst([f.penetration_cm for f in figs])} "
         f"worst_float={worst([f.floating_fraction for f in figs])} worst_seam={worst([f.seam_ratio for f in figs])} "
-        f"speed_within_30pct={_count(done, 'checks', 'speed')} bas_above_shifted={_count(done, 'checks', 'bas')} "
-        f"bas_edge_above_shifted={_count(done, 'checks', 'bas_edge')} "
+        f"speed_within_30pct={_count(results, 'checks', 'speed')} bas_above_shifted={_count(results, 'checks', 'bas')} "
+        f"bas_edge_above_shifted={_count(results, 'checks', 'bas_edge')} "
         f"speed_ratio_mean={_fmt(float(np.mean(ratios)) if ratios else math.nan, '.3f')} "
         f"train_speed={_fmt(train_speed, '.3f')} gen_s_per_dance_s={_fmt(float(np.mean(gen)) if gen else math.nan, '.2f')}"
     )
@@ -204,17 +206,20 @@ def raw_summary(
 ) -> tuple[str, bool]:
     """The raw model's timing (the last line of the report) and whether it meets the model's own beat target: above
     the half-beat-shifted copy on at least :data:`MODEL_BEAT_FRACTION` of the dances in both BAS variants, and its
-    speed-by-phase minimum within one eighth of a beat of the training dances'."""
+    speed-by-phase minimum within one eighth of a beat of the training dances'. A dance that errored counts as one
+    below its shifted copy."""
     done = [r for r in results if r.error is None]
+    n = len(results)
     above = {k: sum(r.raw_checks.get(k, False) for r in done) for k in ("bas", "bas_edge")}
     profile = _profile([r.raw.speed_by_phase for r in done])
     low, train_low = low_phase(profile.tolist()), low_phase(train_profile)
     phase_ok = low is not None and train_low is not None and phase_distance(low, train_low) <= 1
-    met = bool(done) and all(n >= MODEL_BEAT_FRACTION * len(done) for n in above.values()) and phase_ok
+    met = bool(done) and all(k >= MODEL_BEAT_FRACTION * n for k in above.values()) and phase_ok
     ratios = [_ratio(r.raw.mean_speed_m_s, train_speed) for r in done]
     ratios = [x for x in ratios if not math.isnan(x)]
     line = (
-        f"raw: bas_above_shifted={above['bas']}/{len(done)} bas_edge_above_shifted={above['bas_edge']}/{len(done)} "
+        f"raw: bas_above_shifted={above['bas']}/{n} bas_edge_above_shifted={above['bas_edge']}/{n} "
+        f"errors={n - len(done)} "
         f"speed_ratio_mean={_fmt(float(np.mean(ratios)) if ratios else math.nan, '.3f')} "
         f"speed_by_phase={_phase_text(profile)} low_phase={_fmt(low, 'd')} "
         f"train_speed_by_phase={_phase_text(train_profile)} train_low_phase={_fmt(train_low, 'd')} "
@@ -242,7 +247,7 @@ def style_summary_lines(
     for style in dict.fromkeys(r.style for r in results):
         mine = [r for r in results if r.style == style]
         done = [r for r in mine if r.error is None]
-        missed = {name: sum(not r.checks.get(name, True) for r in done) for name in CHECK_NAMES}
+        missed = {name: sum(not r.checks.get(name, False) for r in mine) for name in CHECK_NAMES}  # errors miss all
         p999 = [r.figures.p999_speed_m_s for r in done]
         line = (
             f"style={style} dances={len(mine)} pass={sum(r.passed for r in mine)} errors={len(mine) - len(done)} "
@@ -267,17 +272,19 @@ def genre_speed_line(results: Sequence[SongResult], by_genre: Mapping[str, Mappi
     """How many dances move within 30% of their own genre's training dances' mean speed (finished and raw): reported
     beside the targets, not one of them (the speed target also passes a dance within 30% of all the training
     data's speed, :class:`Reference`)."""
-    done = [r for r in results if r.error is None and (by_genre or {}).get(str(r.genre)) is not None]
+    asked = [r for r in results if (by_genre or {}).get(str(r.genre)) is not None]  # an errored dance fails
 
     def within(figures: Any, genre: str) -> bool:
+        if figures is None:
+            return False
         ratio = _ratio(figures.mean_speed_m_s, float(by_genre[genre]["mean_speed_m_s"]))  # type: ignore[index]
         return SPEED_RATIO_RANGE[0] <= ratio <= SPEED_RATIO_RANGE[1]
 
-    final = sum(within(r.figures, str(r.genre)) for r in done)
-    raw = sum(within(r.raw, str(r.genre)) for r in done)
+    final = sum(r.error is None and within(r.figures, str(r.genre)) for r in asked)
+    raw = sum(r.error is None and within(r.raw, str(r.genre)) for r in asked)
     return (
         f"genre speed (reported, not a target): within 30% of the asked genre's training dances "
-        f"finished={final}/{len(done)} raw={raw}/{len(done)}"
+        f"finished={final}/{len(asked)} raw={raw}/{len(asked)}"
     )
 
 
