@@ -111,6 +111,12 @@ def track_beats(waveform: np.ndarray, sample_rate: int = SAMPLE_RATE) -> Tracked
     return TrackedBeats(60.0 * FPS / period, frames[frames < len(novelty)])
 
 
+def bpm_of_beats(frames: np.ndarray) -> float:
+    """The tempo (BPM) of beat frames at 30 FPS: from their median interval (NaN with fewer than two beats)."""
+    frames = np.sort(np.asarray(frames, dtype=np.float64).reshape(-1))
+    return 60.0 * FPS / float(np.median(np.diff(frames))) if frames.size >= 2 else math.nan
+
+
 def beats_of_song(path: str | Path) -> TrackedBeats:
     """:func:`track_beats` on an audio file (read with the project's loader at 15360 Hz, mono)."""
     from dgsdp.audio.io import load_audio

@@ -331,13 +331,22 @@ def test_tempo_line():
     )
 
 
+def on_independent_beats(r: rs.SongResult, bas: float, edge: float, agree: bool = True) -> rs.SongResult:
+    """``r`` with its song's beat by both trackers (agreeing or not) and BAS ``bas`` and ``edge`` against the
+    independent tracker's beats (0.25 for the shifted copies), raw and finished."""
+    r.tracking = rs.Tracking(120.0, 120.0 if agree else 180.0, agree, 0.9 if agree else 0.4)
+    scores = {"bas": rs.BeatScores(bas, 0.25, 8, 20), "bas_edge": rs.BeatScores(edge, 0.25, 8, 20)}
+    r.independent = {"raw": scores, "final": scores}
+    return r
+
+
 def test_raw_summary_holds_the_model_to_its_beat_target():
     def result(bas: float, edge: float, profile: list[float]) -> rs.SongResult:
         r = rs.SongResult("x.wav", "BR")
         r.raw = rs.SongFigures(10.0, 3.0, 0.0, 0.0, 1.0, 0.4, bas, 0.25, edge, 0.25, 8, 20, 3, profile)
         r.raw_checks = r.raw.checks(rs.Reference(0.4))
         r.figures, r.checks = r.raw, r.raw_checks
-        return r
+        return on_independent_beats(r, bas, edge)  # the same scores on the independent tracker's beats
 
     slow_on_beat = [0.1, 0.4, 0.6, 0.7, 0.7, 0.6, 0.4, 0.2]  # slowest in the first eighth
     train = [0.3, 0.6, 0.7, 0.8, 0.6, 0.3, 0.1, 0.05]  # slowest in the last eighth: one bin from the first
@@ -354,6 +363,42 @@ def test_raw_summary_holds_the_model_to_its_beat_target():
     assert not rs.raw_summary(good, 0.4, None)[1]  # without the training dances' profile it cannot pass
 
 
+def test_the_model_beat_target_needs_the_independent_beats():
+    def result(name: str, on_librosa: float, on_independent: float, agree: bool = True) -> rs.SongResult:
+        r = rs.SongResult(name, "BR")
+        r.raw = rs.SongFigures(10.0, 3.0, 0.0, 0.0, 1.0, 0.4, on_librosa, 0.25, on_librosa, 0.25, 8, 20, 3,
+                               [0.1] + [0.5] * 7)  # fmt: skip
+        r.figures, r.raw_checks = r.raw, r.raw.checks(rs.Reference(0.4))
+        r.checks = r.raw_checks
+        return on_independent_beats(r, on_independent, on_independent, agree)
+
+    train = [0.1] + [0.5] * 7
+    # above the shifted copy on librosa's beats everywhere, on the independent beats in 5 of 10: the target fails
+    half = [result(f"s{k}.wav", 0.5, 0.5 if k < 5 else 0.1) for k in range(10)]
+    line, met = rs.raw_summary(half, 0.4, train)
+    assert not met and "librosa_beats=pass independent_beats=FAIL model_beat_target=FAIL" in line
+    assert "raw: bas_above_shifted=5/10 bas_edge_above_shifted=5/10 (librosa's beats, same dances: bas=10/10 " \
+           "bas_edge=10/10) target=FAIL" in rs.independent_summary(half)  # fmt: skip
+    # the 5 that miss are songs where the trackers disagree: not scored; the 5 scored pass
+    for r in half[5:]:
+        on_independent_beats(r, 0.1, 0.1, agree=False)
+    line, met = rs.raw_summary(half, 0.4, train)
+    assert met and line.endswith("librosa_beats=pass independent_beats=pass model_beat_target=pass")
+    text = rs.independent_summary(half)
+    assert text.startswith(
+        "independent beats: the trackers agree on 5/10 songs; disagree (librosa/independent BPM, not scored): "
+        "s5.wav 120/180, s6.wav 120/180, s7.wav 120/180, s8.wav 120/180, s9.wav 120/180; raw: "
+        "bas_above_shifted=5/5 bas_edge_above_shifted=5/5"
+    )
+    for r in half:  # every song disagrees: nothing to score, the target cannot pass
+        r.tracking = rs.Tracking(120.0, 180.0, False, 0.4)
+    assert not rs.raw_summary(half, 0.4, train)[1]
+    # a dance that errored before its song was tracked is scored, and fails
+    errored = [result(f"s{k}.wav", 0.5, 0.5) for k in range(8)] + [rs.SongResult("bad.wav", "BR", error="x")]
+    assert "raw: bas_above_shifted=8/9 bas_edge_above_shifted=8/9 " in rs.independent_summary(errored)
+    assert not rs.raw_summary(errored, 0.4, train)[1]
+
+
 def test_a_dance_that_errors_is_a_failure_in_every_count():
     def result(error: str | None = None) -> rs.SongResult:
         r = rs.SongResult("x.wav", "BR", error=error, genre="BR", reference=rs.Reference(0.4))
@@ -361,6 +406,7 @@ def test_a_dance_that_errors_is_a_failure_in_every_count():
             r.raw = rs.SongFigures(10.0, 3.0, 0.0, 0.0, 1.0, 0.4, 0.5, 0.25, 0.6, 0.25, 8, 20, 3, [0.1] + [0.5] * 7)
             r.figures, r.raw_checks = r.raw, r.raw.checks(rs.Reference(0.4))
             r.checks = r.raw_checks
+            on_independent_beats(r, 0.5, 0.6)
         return r
 
     good, failed = [result() for _ in range(9)], [result("unreadable") for _ in range(5)]
@@ -464,11 +510,13 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     data = json.loads(report.read_text())
     # each song in one genre, then the genres no song got on the original songs in turn (the broken one too)
     n_extra = len(data["songs"]) - 3
-    assert printed[-4].startswith(f"songs={3 + n_extra} ") and f" errors={1 + n_extra // 2} " in printed[-4]
+    assert printed[-5].startswith(f"songs={3 + n_extra} ") and f" errors={1 + n_extra // 2} " in printed[-5]
     first_styles = {s["style"] for s in data["songs"]}
-    assert printed[-3].startswith("raw: bas_above_shifted=") and printed[-3].split()[-1] in (
+    assert printed[-4].startswith("raw: bas_above_shifted=") and printed[-4].split()[-1] in (
         "model_beat_target=pass", "model_beat_target=FAIL"
     )  # fmt: skip
+    assert printed[-3].startswith("independent beats: the trackers agree on ")
+    assert printed[-3] == data["independent_beats_summary"]
     assert printed[-1].startswith("tempo folds (training tempi 40-60 BPM; song BPM -> BPM given): 2 of 3 songs: ")
     assert printed[-2].startswith("speed targets by genre (the targets: a genre's dances against its own training ")
     assert printed[-2] == data["genre_speed_summary"]
@@ -486,6 +534,12 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     assert long["figures"]["n_boundaries"] == 2  # 210 frames, windows of 150 frames 75 apart: 75 and 150
     assert short["figures"]["n_boundaries"] == 0 and short["figures"]["seam_ratio"] is None  # one window: no seams
     for song in (long, short):
+        # the song's beat by both trackers: clicks at a steady tempo, on which they agree
+        assert song["tracking"]["agree"] and song["tracking"]["independent_bpm"] == pytest.approx(
+            song["tracking"]["librosa_bpm"], rel=0.04
+        )
+        assert set(song["independent_beats"]) == {"raw", "final"}
+        assert set(song["independent_beats"]["raw"]) == {"bas", "bas_edge"}
         assert set(song["checks"]) == {"p999", "penetration", "floating", "seam", "speed", "bas", "bas_edge"}
         assert set(song["raw_checks"]) == set(song["checks"])
         assert song["figures"]["mean_speed_m_s"] > 0 and song["raw_figures"]["mean_speed_m_s"] > 0
@@ -562,7 +616,7 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
         assert song["limits"]["thin_genre"] == (song["genre"] if song["genre"] in by_genre else None)
     as_set = sum(all(s["checks_as_set"].values()) for s in data["songs"] if s["figures"])
     thin = sorted({s["genre"] for s in data["songs"]} & set(by_genre))
-    assert f" pass_as_set={as_set} " in printed[-4] and printed[-2].endswith(": " + (", ".join(thin) or "none"))
+    assert f" pass_as_set={as_set} " in printed[-5] and printed[-2].endswith(": " + (", ".join(thin) or "none"))
 
     # --all-styles: the one song in each of the checkpoint's genres, a row, a dance file and a summary line each
     one = tmp_path / "one"
@@ -581,18 +635,18 @@ def test_benchmark_command_end_to_end_on_a_tiny_checkpoint(tmp_path, capsys):
     assert {p.name for p in (tmp_path / "all").iterdir() if p.is_file()} == {f"clicks__{g}.npy" for g in genres}
     summary = printed.index(next(line for line in printed if line.startswith("songs=")))
     assert printed[summary].startswith(f"songs={len(genres)} ")
-    assert [line.split()[0] for line in printed[summary + 1 : -3]] == [f"style={g}" for g in genres]
-    assert printed[-3].startswith("raw: ") and printed[-1].startswith("tempo folds")
+    assert [line.split()[0] for line in printed[summary + 1 : -4]] == [f"style={g}" for g in genres]
+    assert printed[-4].startswith("raw: ") and printed[-1].startswith("tempo folds")
     # 120 BPM: 0.26 octaves above the tiny data's 80-100 BPM, nearer than 60 BPM
     assert printed[-1] == "tempo folds (training tempi 80-100 BPM; song BPM -> BPM given): 0 of 1 songs"
-    for song, line in zip(data["songs"], printed[summary + 1 : -3]):
+    for song, line in zip(data["songs"], printed[summary + 1 : -4]):
         assert f" pass={int(song['passed'])} " in line
         genre = reference["by_genre"].get(song["style"])  # a genre with training dances: its own speed beside
         if genre is not None:
             ratio = song["figures"]["mean_speed_m_s"] / genre["mean_speed_m_s"]
             assert f" genre_train_speed={genre['mean_speed_m_s']:.3f} " in line
             assert f" speed_ratio_genre={ratio:.2f} " in line
-    assert data["style_summaries"] == printed[summary + 1 : -3]
+    assert data["style_summaries"] == printed[summary + 1 : -4]
     assert any("genre_train_speed=" in line for line in data["style_summaries"])
 
 

@@ -43,10 +43,12 @@ from dgsdp.benchmarks.realsongs.measures import (
 )
 from dgsdp.benchmarks.realsongs.report import (
     SongResult,
+    Tracking,
     format_row,
     genre_of,
     genre_speed_line,
     header,
+    independent_summary,
     low_phase,
     raw_summary,
     style_plan,
@@ -60,7 +62,7 @@ from dgsdp.benchmarks.realsongs.songs import SongInfo, analyse_song, pick_varied
 
 __all__ = [
     "BAS_VARIANTS", "low_phase", "phase_bins", "phase_distance", "raw_summary", "speed_by_phase",
-    "BeatScores", "Reference", "SongFigures", "SongInfo", "SongResult", "analyse_song", "beat_scores", "dance_figures",
+    "BeatScores", "Reference", "SongFigures", "SongInfo", "SongResult", "Tracking", "independent_summary", "analyse_song", "beat_scores", "dance_figures",
     "floating_fraction", "format_row", "genre_of", "genre_speed_line", "header", "main", "mean_joint_speed", "p999_joint_speed", "penetration_cm",
     "pick_varied", "prepare", "run_benchmark", "seam_ratio", "song_family", "style_plan", "style_summary_lines",
     "styles_for", "summary_line", "tempo_line", "training_dances_passing", "training_figures", "window_boundaries", "windowed_speed", "write_versions",

@@ -13,9 +13,11 @@ import numpy as np
 
 from dgsdp.audio.tempo import TempoFold
 from dgsdp.benchmarks.realsongs.measures import (
+    BAS_VARIANTS,
     CHECK_NAMES,
     MIN_GENRE_SECONDS,
     PHASE_BINS,
+    BeatScores,
     Reference,
     SongFigures,
     phase_distance,
@@ -55,6 +57,18 @@ def style_plan(
     return plan
 
 
+@dataclass(frozen=True)
+class Tracking:
+    """The song's beat by the two trackers: librosa's (the features' beat column, what the model hears and the
+    main BAS columns score against) and the independent one (:mod:`dgsdp.audio.beat_tracker`), and whether they
+    agree (:func:`~dgsdp.audio.beat_tracker.trackers_agree`: tempi within 4%, beats matching)."""
+
+    librosa_bpm: float
+    independent_bpm: float
+    agree: bool
+    f_measure: float  # of librosa's beats against the independent ones, 70 ms
+
+
 @dataclass
 class SongResult:
     """One dance of the benchmark: the finished dance's figures (``figures``, what generate.py writes) and the raw
@@ -73,6 +87,15 @@ class SongResult:
     tempo: TempoFold | None = None  # the song's tempo and how its beats were given to the model
     reference: Reference | None = None  # what the speed targets measured it against
     genre: str | None = None  # the genre code the style names (KR for "krump"); None for free text or a schedule
+    tracking: Tracking | None = None  # the song's beat by the two trackers
+    # BAS against the independent tracker's beats: {"raw"|"final": {"bas"|"bas_edge": BeatScores}}
+    independent: dict[str, dict[str, BeatScores]] = field(default_factory=dict)
+
+    def independent_above(self, stage: str, variant: str) -> bool:
+        """Whether the stage's dance is above its half-beat-shifted copy on the independent tracker's beats (an
+        error, or no such score, is not)."""
+        scores = self.independent.get(stage, {}).get(variant)
+        return self.error is None and scores is not None and scores.above_shifted
 
     @property
     def passed(self) -> bool:
@@ -135,7 +158,27 @@ def format_row(result: SongResult, train_speed: float, width: int = 30) -> str:
     raw = _stage_row(result.name, style, "raw", result.raw, train_speed, "", f"({verdict(result.raw_checks)})", width)
     final = _stage_row(result.name, style, "final", result.figures, train_speed, f"{result.dance_seconds:.1f}",
                        verdict(result.checks), width)  # fmt: skip
-    return f"{raw}\n{final}\n  {finishing_text(result.finishing)}"
+    return f"{raw}\n{final}\n  {finishing_text(result.finishing)}\n  {tracking_text(result)}"
+
+
+def tracking_text(result: SongResult) -> str:
+    """The song's beat by both trackers and the dance's BAS against the independent tracker's beats, in words."""
+    t = result.tracking
+    if t is None:
+        return "beats: n/a"
+    verdict_ = "agree" if t.agree else "DISAGREE (not scored for the model's timing)"
+    parts = [
+        f"beats: librosa {_fmt(t.librosa_bpm, '.1f')} BPM, independent {_fmt(t.independent_bpm, '.1f')} BPM, "
+        f"F {t.f_measure:.2f}: {verdict_}"
+    ]
+    for stage in ("raw", "final"):
+        scores = result.independent.get(stage, {})
+        cells = [
+            f"{variant} {_fmt(sc.bas, '.3f')}/{_fmt(sc.shifted, '.3f')}" for variant, sc in scores.items()
+        ]  # fmt: skip
+        parts.append(f"{stage} on independent beats (dance/shifted) " + " ".join(cells))
+
+    return "; ".join(parts)
 
 
 def finishing_text(n: dict[str, float]) -> str:
@@ -213,16 +256,20 @@ def raw_summary(
     results: Sequence[SongResult], train_speed: float, train_profile: Sequence[float] | None
 ) -> tuple[str, bool]:
     """The raw model's timing (the last line of the report) and whether it meets the model's own beat target: above
-    the half-beat-shifted copy on at least :data:`MODEL_BEAT_FRACTION` of the dances in both BAS variants, and its
-    speed-by-phase minimum within one eighth of a beat of the training dances'. A dance that errored counts as one
-    below its shifted copy."""
+    the half-beat-shifted copy on at least :data:`MODEL_BEAT_FRACTION` of the dances in both BAS variants on
+    librosa's beats, its speed-by-phase minimum within one eighth of a beat of the training dances', and the same
+    fraction above the shifted copy in both variants on the independent tracker's beats, over the dances of songs
+    where the two trackers agree (:func:`independent_summary`). A dance that errored counts as one below its
+    shifted copy."""
     done = [r for r in results if r.error is None]
     n = len(results)
     above = {k: sum(r.raw_checks.get(k, False) for r in done) for k in ("bas", "bas_edge")}
     profile = _profile([r.raw.speed_by_phase for r in done])
     low, train_low = low_phase(profile.tolist()), low_phase(train_profile)
     phase_ok = low is not None and train_low is not None and phase_distance(low, train_low) <= 1
-    met = bool(done) and all(k >= MODEL_BEAT_FRACTION * n for k in above.values()) and phase_ok
+    librosa_met = bool(done) and all(k >= MODEL_BEAT_FRACTION * n for k in above.values()) and phase_ok
+    independent_met = _independent_counts(results, "raw")[2]
+    met = librosa_met and independent_met
     ratios = [_ratio(r.raw.mean_speed_m_s, train_speed) for r in done]
     ratios = [x for x in ratios if not math.isnan(x)]
     line = (
@@ -231,9 +278,50 @@ def raw_summary(
         f"speed_ratio_mean={_fmt(float(np.mean(ratios)) if ratios else math.nan, '.3f')} "
         f"speed_by_phase={_phase_text(profile)} low_phase={_fmt(low, 'd')} "
         f"train_speed_by_phase={_phase_text(train_profile)} train_low_phase={_fmt(train_low, 'd')} "
+        f"librosa_beats={'pass' if librosa_met else 'FAIL'} independent_beats={'pass' if independent_met else 'FAIL'} "
         f"model_beat_target={'pass' if met else 'FAIL'}"
     )
     return line, met
+
+
+def _independent_counts(results: Sequence[SongResult], stage: str) -> tuple[dict[str, int], list[SongResult], bool]:
+    """Per BAS variant, how many of the scored dances (those of songs where the two trackers agree, and those that
+    errored before their song was tracked) are above their shifted copy on the independent beats; the scored
+    dances; and whether at least :data:`MODEL_BEAT_FRACTION` of them are, in both variants."""
+    scored = [r for r in results if r.tracking is None or r.tracking.agree]
+    above = {v: sum(r.independent_above(stage, v) for r in scored) for v in BAS_VARIANTS}
+    met = bool(scored) and all(k >= MODEL_BEAT_FRACTION * len(scored) for k in above.values())
+    return above, scored, met
+
+
+def independent_summary(results: Sequence[SongResult]) -> str:
+    """The beat by the two trackers (how many songs they agree on, and the tempi where they do not) and the dances
+    above their half-beat-shifted copy on the independent tracker's beats, raw and finished, beside the same
+    dances on librosa's beats. Dances of songs where the trackers disagree are not scored: neither beat can be
+    trusted there."""
+    songs: dict[str, Tracking] = {r.name: r.tracking for r in results if r.tracking is not None}
+    disagree = sorted(name for name, t in songs.items() if not t.agree)
+    parts = [
+        f"independent beats: the trackers agree on {len(songs) - len(disagree)}/{len(songs)} songs"
+        + (
+            "; disagree (librosa/independent BPM, not scored): "
+            + ", ".join(f"{n} {songs[n].librosa_bpm:.0f}/{songs[n].independent_bpm:.0f}" for n in disagree)
+            if disagree
+            else ""
+        )
+    ]
+    for stage, checks in (("raw", "raw_checks"), ("final", "checks")):
+        above, scored, met = _independent_counts(results, stage)
+        on_librosa = {v: sum(getattr(r, checks).get(v, False) for r in scored) for v in BAS_VARIANTS}
+        parts.append(
+            f"{stage}: "
+            + " ".join(f"{v}_above_shifted={above[v]}/{len(scored)}" for v in BAS_VARIANTS)
+            + " (librosa's beats, same dances: "
+            + " ".join(f"{v}={on_librosa[v]}/{len(scored)}" for v in BAS_VARIANTS)
+            + ")"
+            + (f" target={'pass' if met else 'FAIL'}" if stage == "raw" else "")
+        )
+    return "; ".join(parts)
 
 
 def _phase_text(profile: Sequence[float] | None) -> str:

@@ -14,6 +14,14 @@ from typing import Any
 
 import numpy as np
 
+from dgsdp.audio.beat_tracker import (
+    AGREE_F_MEASURE,
+    TEMPO_TOLERANCE,
+    TrackedBeats,
+    beats_of_song,
+    bpm_of_beats,
+    trackers_agree,
+)
 from dgsdp.benchmarks.realsongs.measures import (
     BAS_VARIANTS,
     FLOATING_HEIGHT_M,
@@ -26,6 +34,7 @@ from dgsdp.benchmarks.realsongs.measures import (
     SPEED_RATIO_RANGE,
     Reference,
     _no_nan,
+    beat_scores,
     dance_figures,
     training_dances_passing,
     training_figures,
@@ -34,11 +43,13 @@ from dgsdp.benchmarks.realsongs.measures import (
 from dgsdp.benchmarks.realsongs.report import (
     MODEL_BEAT_FRACTION,
     SongResult,
+    Tracking,
     _fmt,
     format_row,
     genre_of,
     genre_speed_line,
     header,
+    independent_summary,
     raw_summary,
     style_plan,
     style_summary_lines,
@@ -106,6 +117,7 @@ def run_benchmark(
         genres = list(vocab.codes)
     dances = style_plan(songs, genres, None if style is None else str(style), all_styles)
     plans: dict[str | None, Any] = {}
+    tracked: dict[Path, TrackedBeats] = {}
     first: dict[Path, tuple[Path, str | None]] = {}
     for pair in dances:
         first.setdefault(pair[0], pair)
@@ -164,6 +176,15 @@ def run_benchmark(
             result.raw = dance_figures(raw_joints, music_beats=beats, boundaries=boundaries, floor_m=floor)
             result.checks = result.figures.checks(result.reference)
             result.raw_checks = result.raw.checks(result.reference)
+            if song not in tracked:  # the independent tracker's beats, once per song
+                tracked[song] = beats_of_song(song)
+            independent = tracked[song]
+            agree, f = trackers_agree(TrackedBeats(bpm_of_beats(beats), np.asarray(beats)), independent)
+            result.tracking = Tracking(bpm_of_beats(beats), independent.bpm, agree, f)
+            result.independent = {
+                stage: {v: beat_scores(j, independent.frames, variant=v) for v in BAS_VARIANTS}
+                for stage, j in (("raw", raw_joints), ("final", joints))
+            }
             moved = np.linalg.norm(joints - raw_joints, axis=-1)
             result.finishing = {
                 **dance.finishing[0], "moved_mean_cm": 100 * float(moved.mean()), "moved_max_cm": 100 * float(moved.max())
@@ -180,6 +201,8 @@ def run_benchmark(
         print("\n".join(style_lines), file=out, flush=True)
     raw_line, _ = raw_summary(results, train_speed, None if reference is None else reference.get("speed_by_phase"))
     print(raw_line, file=out, flush=True)
+    independent_line = independent_summary(results)
+    print(independent_line, file=out, flush=True)
     genre_line = genre_speed_line(results)
     print(genre_line, file=out, flush=True)
     tempo_summary = tempo_line(results)
@@ -213,6 +236,12 @@ def run_benchmark(
                 f"data lacks or one with under {MIN_GENRE_SECONDS:g} s of training dances against all the training "
                 "data (each song's 'limits'; 'checks_as_set': every dance against all the training data)",
                 "bas_variants_sigma_frames": {k: list(v) for k, v in BAS_VARIANTS.items()},
+                "independent_beats": "BAS also against the beats of dgsdp.audio.beat_tracker (spectral flux, "
+                "comb-filter tempo, grid phase: no code shared with librosa's); the trackers agree on a song when "
+                f"their tempi are within {TEMPO_TOLERANCE:.0%} (double or half is a disagreement) and at least "
+                f"{AGREE_F_MEASURE:g} F-measure (70 ms) of librosa's beats match; the model's own timing target "
+                "needs the same fraction above the shifted copy on the independent beats, over the dances of the "
+                "songs where the trackers agree (the others are not scored)",
                 "model_beat_fraction_at_least": MODEL_BEAT_FRACTION,
             },
             "finishing": finishing_settings,
@@ -236,6 +265,10 @@ def run_benchmark(
                     if r.figures is None or r.reference is None
                     else r.figures.checks(r.reference.overall),
                     "raw_checks": r.raw_checks,
+                    "tracking": None if r.tracking is None else asdict(r.tracking),
+                    "independent_beats": {
+                        stage: {v: asdict(sc) for v, sc in scores.items()} for stage, scores in r.independent.items()
+                    },
                     "passed": r.passed,
                     "tempo": None if r.tempo is None else {**asdict(r.tempo), "given_bpm": r.tempo.given_bpm},
                 }
@@ -244,6 +277,7 @@ def run_benchmark(
             "summary": summary,
             "style_summaries": style_lines,
             "raw_summary": raw_line,
+            "independent_beats_summary": independent_line,
             "genre_speed_summary": genre_line,
             "tempo_summary": tempo_summary,
         }
