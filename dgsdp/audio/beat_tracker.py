@@ -28,6 +28,7 @@ FPS = 30  # beat frames are at the model's 30 FPS
 SAMPLE_RATE = 15360  # hop 512 gives exactly 30 frames per second (the 35-d features' rate)
 HOP = SAMPLE_RATE // FPS
 N_FFT = 1024
+LOW_BAND_HZ = 300.0  # the low band's onsets (kicks) weigh as much as the whole spectrum's in the phase
 BPM_RANGE = (60.0, 200.0)  # the tempi a beat is looked for in
 PRIOR_BPM, PRIOR_OCTAVES = 110.0, 1.0  # a broad log-normal preference between octaves of one pulse
 COMB_HARMONICS = 4  # lags k * period, k = 1 .. this, summed
@@ -44,10 +45,11 @@ class TrackedBeats:
     frames: np.ndarray
 
 
-def spectral_flux(waveform: np.ndarray, sample_rate: int = SAMPLE_RATE) -> np.ndarray:
-    """The onset novelty of a mono waveform at 30 FPS, (T,): the half-wave rectified frame-to-frame rise of the
-    log-compressed magnitude spectrum (Hann window of 1024 samples at 15360 Hz), summed over frequency, minus its
-    half-second moving average and rectified again."""
+def spectral_flux(waveform: np.ndarray, sample_rate: int = SAMPLE_RATE) -> tuple[np.ndarray, np.ndarray]:
+    """The onset novelty of a mono waveform at 30 FPS, over the whole spectrum and below :data:`LOW_BAND_HZ` (the
+    kick drum's band, where the beat usually is and the off-beat hats are not), each (T,): the half-wave rectified
+    frame-to-frame rise of the log-compressed magnitude spectrum (Hann window of 1024 samples at 15360 Hz), summed
+    over its bins, minus its half-second moving average and rectified again."""
     y = np.asarray(waveform, dtype=np.float64).reshape(-1)
     if sample_rate != SAMPLE_RATE:
         raise ValueError(f"spectral_flux expects {SAMPLE_RATE} Hz audio; got {sample_rate}")
@@ -56,10 +58,14 @@ def spectral_flux(waveform: np.ndarray, sample_rate: int = SAMPLE_RATE) -> np.nd
     idx = np.arange(N_FFT)[None, :] + HOP * np.arange(n_frames)[:, None]
     spectrum = np.abs(np.fft.rfft(padded[idx] * np.hanning(N_FFT)[None, :], axis=1))
     log_spec = np.log1p(1000.0 * spectrum / max(float(spectrum.max()), 1e-12))
-    rise = np.maximum(np.diff(log_spec, axis=0, prepend=log_spec[:1]), 0.0).sum(axis=1)
+    rise = np.maximum(np.diff(log_spec, axis=0, prepend=log_spec[:1]), 0.0)
+    low_bins = int(LOW_BAND_HZ * N_FFT / SAMPLE_RATE)
     width = FPS // 2
-    local = np.convolve(rise, np.ones(2 * width + 1) / (2 * width + 1), mode="same")
-    return np.maximum(rise - local, 0.0)
+    kernel = np.ones(2 * width + 1) / (2 * width + 1)
+    out = []
+    for band in (rise.sum(axis=1), rise[:, :low_bins].sum(axis=1)):
+        out.append(np.maximum(band - np.convolve(band, kernel, mode="same"), 0.0))
+    return out[0], out[1]
 
 
 def _comb_tempo(novelty: np.ndarray) -> float:
@@ -101,12 +107,16 @@ def _grid_fit(novelty: np.ndarray, bpm: float) -> tuple[float, float]:
 
 def track_beats(waveform: np.ndarray, sample_rate: int = SAMPLE_RATE) -> TrackedBeats:
     """The tempo and beats (30 FPS frames) of a mono waveform at 15360 Hz: :func:`spectral_flux`, the comb-filter
-    tempo, then the best constant-tempo grid near it. Silence or a clip shorter than two beats gives no beats."""
-    novelty = spectral_flux(waveform, sample_rate)
+    tempo on the whole spectrum's novelty, then the constant-tempo grid near it that lands on the most novelty of
+    the whole spectrum and of the low band together. Silence or a clip shorter than two beats gives no beats."""
+    novelty, low = spectral_flux(waveform, sample_rate)
     if len(novelty) < 2 * FPS or not novelty.any():
         return TrackedBeats(math.nan, np.zeros(0, dtype=np.int64))
     coarse = _comb_tempo(novelty)
-    period, phase = _grid_fit(novelty, coarse)
+    # the grid's phase: the whole spectrum's onsets and the low band's, equally weighted, so that loud off-beat
+    # hats do not win over the kicks
+    both = novelty / max(float(novelty.mean()), 1e-12) + low / max(float(low.mean()), 1e-12)
+    period, phase = _grid_fit(both, coarse)
     frames = np.rint(np.arange(phase, len(novelty), period)).astype(np.int64)
     return TrackedBeats(60.0 * FPS / period, frames[frames < len(novelty)])
 

@@ -53,3 +53,27 @@ def test_tracker_on_silence_and_a_short_clip():
     assert bt.track_beats(np.random.default_rng(0).standard_normal(bt.SAMPLE_RATE)).frames.size == 0
     with pytest.raises(ValueError, match="15360 Hz"):
         bt.spectral_flux(np.zeros(1000), 22050)
+    novelty, low = bt.spectral_flux(np.zeros(bt.SAMPLE_RATE * 2))
+    assert novelty.shape == low.shape == (61,) and not novelty.any()
+
+
+def test_the_librosa_features_can_take_their_beats_from_the_independent_tracker():
+    from dgsdp.audio import LibrosaEncoder
+    from dgsdp.audio.librosa_encoder import BEAT_COLUMN
+    from dgsdp.errors import ConfigError
+
+    audio, beats_s = synthesize_music("HO", 125.0, 10.0, first_beat_s=0.2, sample_rate_hz=bt.SAMPLE_RATE,
+                                      rng=np.random.default_rng(5))  # fmt: skip
+    flux = LibrosaEncoder(beat_tracker="flux")
+    features = flux.encode(audio, bt.SAMPLE_RATE)
+    beat_column = np.flatnonzero(features[:, BEAT_COLUMN])
+    assert np.array_equal(beat_column, bt.track_beats(audio).frames[bt.track_beats(audio).frames < len(features)])
+    assert bt.beat_f_measure(beat_column / bt.FPS, beats_s) >= 0.9
+    default = LibrosaEncoder()
+    assert np.array_equal(default.encode(audio, bt.SAMPLE_RATE)[:, :BEAT_COLUMN], features[:, :BEAT_COLUMN])
+    # the setting is part of the features' identity only when it is not the default (EDGE's features unchanged)
+    assert flux.settings()["beat_tracker"] == "flux" and "beat_tracker" not in default.settings()
+    with pytest.raises(ConfigError, match="beat_tracker must be one of"):
+        LibrosaEncoder(beat_tracker="madmom")
+    with pytest.raises(ConfigError, match="sample_rate=15360"):
+        LibrosaEncoder(beat_tracker="flux", sample_rate=30720, hop_length=1024)
