@@ -77,3 +77,34 @@ def test_the_librosa_features_can_take_their_beats_from_the_independent_tracker(
         LibrosaEncoder(beat_tracker="madmom")
     with pytest.raises(ConfigError, match="sample_rate=15360"):
         LibrosaEncoder(beat_tracker="flux", sample_rate=30720, hop_length=1024)
+
+
+def test_the_tracker_benchmark_measures_both_trackers_on_known_beats(tmp_path, capsys):
+    import json
+
+    from dgsdp.benchmarks.beat_trackers import main
+    from dgsdp.data.synthetic import generate_synthetic_aistpp
+
+    root = generate_synthetic_aistpp(tmp_path / "data", sequences_per_genre=2, seconds=8.0, genres=["HO"],
+                                     num_ignored=0, sample_rate_hz=bt.SAMPLE_RATE)  # fmt: skip
+    songs = tmp_path / "songs"
+    songs.mkdir()
+    (songs / "a.wav").symlink_to(next((root / "wavs").glob("*.wav")))
+    assert main([str(root), "--songs", str(songs), "--json", str(tmp_path / "t.json")]) == 0
+    printed = capsys.readouterr().out
+    figures = json.loads((tmp_path / "t.json").read_text())
+    n = figures["synthetic"]["flux"]["songs"]
+    assert n == len(json.loads((root / "synthetic.json").read_text())["music"]) >= 2
+    assert set(figures["synthetic"]) == {"flux", "librosa", "librosa_id_prior"}
+    from dgsdp.audio.io import load_audio
+    from dgsdp.data.synthetic import music_beat_times_s, read_manifest
+
+    manifest, fs, tempi = read_manifest(root), [], 0
+    for music_id, info in manifest["music"].items():  # the flux row recomputed song by song
+        found = bt.track_beats(load_audio(root / "wavs" / f"{music_id}.wav", bt.SAMPLE_RATE)[0])
+        fs.append(bt.beat_f_measure(found.frames / bt.FPS, music_beat_times_s(manifest, music_id)))
+        tempi += bt.tempo_agrees(found.bpm, info["bpm"])
+    assert figures["synthetic"]["flux"]["f_measure"] == pytest.approx(np.mean(fs))
+    assert figures["synthetic"]["flux"]["tempo_within_4pct"] == tempi
+    assert f"synthetic flux: songs={n} f_measure_70ms=" in printed
+    assert figures["songs"][0]["song"].endswith("a.wav") and "real songs: the trackers agree on " in printed
