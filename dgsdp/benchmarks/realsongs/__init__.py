@@ -17,8 +17,12 @@ fraction of frames floating above it, the seam ratio of the long-form window bou
 against the training data's, the beat alignment score in two variants against the same motion shifted by half a
 beat, and the mean speed by beat phase. Each song has two rows from the same sample: the raw model's (``cleanup=
 false``) and the finished dance's (what generate.py writes, judged against the targets), and a line of what the
-finishing changed; then a summary line of the finished dances and one of the raw model's timing. The metric
-functions below are plain numpy on joints (T, 24, 3).
+finishing changed, and a line of the song's beat by two trackers (librosa's, which the model hears, and the
+independent one of :mod:`dgsdp.audio.beat_tracker`) with the dance's BAS on the independent beats; then a summary
+line of the finished dances (a dance asked for in a genre judged against that genre's training dances; every
+error a failure), one of the raw model's timing (its target needs the independent beats too), one of the
+independent beats (where the trackers disagree, said rather than scored), one of the speed targets both ways
+and one of the tempo folds. The metric functions below are plain numpy on joints (T, 24, 3).
 """
 
 from dgsdp.benchmarks.realsongs.measures import (
