@@ -1,7 +1,8 @@
 """EDGE/FACT's hand-crafted 35-d music features, computed with librosa at exactly 30 FPS.
 
 Columns, in order: onset-strength envelope (0), MFCC (1-20), chroma_cens (21-32), onset peaks one-hot (33),
-beats one-hot (34). 15360 Hz with hop 512 gives exactly 30 frames per second.
+beats one-hot (34: librosa's beat tracker, EDGE's; or with ``beat_tracker="flux"`` the independent tracker of
+:mod:`dgsdp.audio.beat_tracker`). 15360 Hz with hop 512 gives exactly 30 frames per second.
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ import librosa
 import numpy as np
 
 from dgsdp.audio.base import AudioEncoder
+from dgsdp.audio.beat_tracker import SAMPLE_RATE as FLUX_SAMPLE_RATE
+from dgsdp.audio.beat_tracker import track_beats
 from dgsdp.audio.loudness import normalize_loudness
 from dgsdp.audio.tempo import tempo_from_music_id
 from dgsdp.errors import ConfigError
@@ -24,6 +27,9 @@ PEAK_COLUMN = 33
 BEAT_COLUMN = 34
 
 STANDARDIZE_MODES = ("none", "mean", "mean_std")
+# what finds the beats of the beat column: librosa's tracker (EDGE's features), or the independent one of
+# dgsdp.audio.beat_tracker, which finds the synthetic songs' known beats more often (docs/notes/2026-11-26-independent-beats.md)
+BEAT_TRACKERS = ("librosa", "flux")
 _STD_FLOOR = 1e-3  # a column that does not move (silence) is centred, not blown up
 
 
@@ -73,6 +79,7 @@ class LibrosaEncoder(AudioEncoder):
         per_window: bool = False,
         beat_phase: bool = False,
         rhythm_only: bool = False,
+        beat_tracker: str = "librosa",
     ) -> None:
         if sample_rate % hop_length != 0 or sample_rate // hop_length != self.fps:
             raise ValueError(f"sample_rate / hop_length must equal {self.fps} FPS, got {sample_rate} / {hop_length}")
@@ -95,6 +102,11 @@ class LibrosaEncoder(AudioEncoder):
         self.per_window = bool(per_window)  # not a settings() key: whole-song features are the same
         self.beat_phase = bool(beat_phase)
         self.rhythm_only = bool(rhythm_only)
+        if beat_tracker not in BEAT_TRACKERS:
+            raise ConfigError(f"beat_tracker must be one of {', '.join(BEAT_TRACKERS)}, got {beat_tracker!r}")
+        if beat_tracker == "flux" and self.sample_rate != FLUX_SAMPLE_RATE:
+            raise ConfigError(f"beat_tracker=flux works at sample_rate={FLUX_SAMPLE_RATE}, got {self.sample_rate}")
+        self.beat_tracker = str(beat_tracker)
 
     def settings(self) -> dict[str, Any]:
         return {
@@ -110,6 +122,7 @@ class LibrosaEncoder(AudioEncoder):
             "librosa": librosa.__version__,
             # only when on: the features (and caches, and checkpoints) of full-feature runs stay as they were
             **({"rhythm_only": True} if self.rhythm_only else {}),
+            **({"beat_tracker": self.beat_tracker} if self.beat_tracker != "librosa" else {}),
         }
 
     def start_bpm(self, music_id: str | None) -> float | None:
@@ -149,16 +162,19 @@ class LibrosaEncoder(AudioEncoder):
             mfcc = librosa.feature.mfcc(y=waveform, sr=sr, n_mfcc=self.n_mfcc, hop_length=hop, fmax=self.mfcc_fmax_hz).T
             chroma = librosa.feature.chroma_cens(y=waveform, sr=sr, hop_length=hop, n_chroma=self.n_chroma).T
             peaks = librosa.onset.onset_detect(onset_envelope=envelope, sr=sr, hop_length=hop)
-            start_bpm = self.start_bpm(music_id)
-            if start_bpm is None:
-                start_bpm = float(librosa.feature.tempo(onset_envelope=envelope, sr=sr, hop_length=hop)[0])
-            _, beats = librosa.beat.beat_track(
-                onset_envelope=envelope,
-                sr=sr,
-                hop_length=hop,
-                start_bpm=start_bpm,
-                tightness=self.beat_tightness,
-            )
+            if self.beat_tracker == "flux":  # the independent tracker (dgsdp.audio.beat_tracker)
+                beats = track_beats(waveform, sr).frames
+            else:
+                start_bpm = self.start_bpm(music_id)
+                if start_bpm is None:
+                    start_bpm = float(librosa.feature.tempo(onset_envelope=envelope, sr=sr, hop_length=hop)[0])
+                _, beats = librosa.beat.beat_track(
+                    onset_envelope=envelope,
+                    sr=sr,
+                    hop_length=hop,
+                    start_bpm=start_bpm,
+                    tightness=self.beat_tightness,
+                )
         n = min(len(envelope), len(mfcc), len(chroma))
         peak_onehot = np.zeros(n, dtype=np.float32)
         peak_onehot[peaks[peaks < n]] = 1.0

@@ -11,6 +11,8 @@ from dgsdp.audio import AudioEncoder, FeatureCache
 from dgsdp.data.aistpp import music_path
 from dgsdp.data.datamodule import Sequence as DanceSequence
 from dgsdp.data.datamodule import load_sequences, window_starts
+from dgsdp.data.synthetic import MANIFEST as SYNTHETIC_MANIFEST
+from dgsdp.data.synthetic import music_beat_times_s, read_manifest
 from dgsdp.errors import DataError
 from dgsdp.evaluation.features import MODEL_FPS
 from dgsdp.evaluation.protocols import ProtocolSpec
@@ -34,9 +36,16 @@ class Clip:
     seq: DanceSequence
     start: int
     n_frames: int
-    beats_30fps: np.ndarray  # (K,) music beat frames relative to ``start``
+    beats_30fps: np.ndarray  # (K,) music beat frames relative to ``start``: the tracker's, what generation uses
     index: int = 0  # place among the protocol's clips of this length (decides the clip's seed)
     music_file: Path | None = None  # the song (for encoders that compute each window's features from its audio)
+    known_beats_30fps: np.ndarray | None = None  # the song's own beats where the dataset knows them (synthetic)
+
+    @property
+    def scoring_beats_30fps(self) -> np.ndarray:
+        """The beats BeatAlign scores against: the song's known beats where the dataset has them (a synthetic
+        dataset's ``synthetic.json``), else the tracker's (:attr:`beats_30fps`)."""
+        return self.beats_30fps if self.known_beats_30fps is None else self.known_beats_30fps
 
     @property
     def motion(self) -> np.ndarray:
@@ -78,6 +87,22 @@ class ClipSource:
         self.progress = progress
         self._beat_encoder: AudioEncoder | None = None
         self._beats: dict[str, np.ndarray] = {}
+        manifest = self.data_root / SYNTHETIC_MANIFEST
+        self._manifest = read_manifest(self.data_root) if manifest.is_file() else None
+
+    @property
+    def beat_source(self) -> str:
+        """What BeatAlign is scored against, in words (for the results)."""
+        if self._manifest is not None:
+            return f"the synthetic songs' known beats ({SYNTHETIC_MANIFEST})"
+        return "librosa's beat tracker on the songs (column 34 of the 35-d librosa features): no known beats"
+
+    def known_beats(self, seq: DanceSequence) -> np.ndarray | None:
+        """Beat frames (K,) at 30 FPS of a sequence's music as the dataset made them (a synthetic dataset's
+        ``synthetic.json``: the nearest frame to each beat time), or None where the dataset does not know them."""
+        if self._manifest is None or seq.music_id not in self._manifest.get("music", {}):
+            return None
+        return np.unique(np.round(music_beat_times_s(self._manifest, seq.music_id) * MODEL_FPS).astype(np.int64))
 
     def load_split(self, split: str, with_music: bool = True) -> list[DanceSequence]:
         """Sequences of a split (with the model's music features), or [] with a warning when the dataset has no such
@@ -130,11 +155,12 @@ class ClipSource:
             else:
                 starts = window_starts(len(seq.motion), n_frames, int(round(self.spec.stride_seconds * MODEL_FPS)))
                 n = n_frames
-            beats = self.music_beats(seq)
+            beats, known = self.music_beats(seq), self.known_beats(seq)
             song = music_path(self.data_root, seq.music_id)
             for s in starts:
                 rel = beats[(beats >= s) & (beats < s + n)] - s
-                out.append(Clip(seq, s, n, rel, index=len(out), music_file=song))
+                known_rel = None if known is None else known[(known >= s) & (known < s + n)] - s
+                out.append(Clip(seq, s, n, rel, index=len(out), music_file=song, known_beats_30fps=known_rel))
         if self.spec.max_dances is not None:
             out = out[: self.spec.max_dances]
         if len(out) < 2:

@@ -51,6 +51,8 @@ def results_markdown(results: Mapping[str, Any]) -> str:
     if sampling:
         student = "; a guidance-distilled student, one pass per step" if run.get("guidance_student") else ""
         out[-1:] = [f"Sampling: {sampling_summary(sampling)}{student}", ""]
+    if results.get("beats"):
+        out += [f"BeatAlign scored against: {results['beats']}", ""]
     out.append(markdown_table(["row", *metrics, "trials"], rows))
     notes = [f"- {r['name']}: {r['notes']}" for r in results["rows"] if r.get("notes")]
     if notes:

@@ -1,6 +1,7 @@
 """Run an evaluation protocol on a trained model: sample dances, compute every metric per trial, aggregate.
 
-Per row and trial the metrics are: BeatAlign (Bailando's score at 60 FPS against the music's beat track), PFC
+Per row and trial the metrics are: BeatAlign (Bailando's score at 60 FPS against the songs' known beats where the
+dataset has them, a synthetic dataset's, else the music's beat track), PFC
 (EDGE, 30 FPS z-up), FID_k / FID_g and Div_k / Div_g (against the protocol's reference set, normalised by its
 statistics), and StyleAcc (a :class:`~dgsdp.metrics.GenreClassifier` fitted on ground-truth features of the
 training split, asked whether each dance shows the genre it was generated for). A metric that cannot be computed
@@ -146,6 +147,7 @@ class Evaluator:
             "rows": rows + gt_rows,
             "warnings": self.warnings.items,
             "n_clips": {f"{s:g}": len(c) for s, c in by_length.items()},
+            "beats": self.source.beat_source,  # what BeatAlign was scored against
             "classifier_fitted": classifier is not None,
         }
 

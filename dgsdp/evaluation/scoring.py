@@ -93,7 +93,7 @@ class Scorer:
         out: dict[str, float | None] = {}
         out["BeatAlign"] = guard(
             row, "BeatAlign",
-            lambda: np.mean([beat_alignment(p, beats_to_feature_fps(c.beats_30fps), fps=FEATURE_FPS)
+            lambda: np.mean([beat_alignment(p, beats_to_feature_fps(c.scoring_beats_30fps), fps=FEATURE_FPS)
                              for p, c in zip(prepared, clips)]),
         )  # fmt: skip
         out["PFC"] = guard(row, "PFC", lambda: np.mean([pfc(j, fps=MODEL_FPS, up_axis="z") for j in joints]))

@@ -4,16 +4,15 @@ independently with the metric functions, long-form, masking and Bailando protoco
 import json
 import math
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from conftest import compose_eval
 
-from dgsdp.audio import FeatureCache, LibrosaEncoder
 from dgsdp.cli.config import compose_config
 from dgsdp.cli.evaluate import evaluate
-from dgsdp.data.aistpp import music_path
 from dgsdp.data.datamodule import load_sequences
 from dgsdp.errors import ConfigError, DataError
 from dgsdp.evaluation import (
@@ -34,7 +33,6 @@ from dgsdp.metrics import (
     diversity,
     geometric_features,
     kinetic_features,
-    music_beats_from_features,
     pfc,
 )
 from dgsdp.motion import pose_to_joints
@@ -48,6 +46,19 @@ def evaluator(run, protocol: dict) -> Evaluator:
     generator = DanceGenerator(load_model(run["checkpoint"]), cache_dir=run["cache"])
     spec = ProtocolSpec.from_config(protocol)
     return Evaluator(generator, spec, data_root=run["root"], cache_dir=run["cache"], progress=False)
+
+
+def tmp_copy_without_manifest(root) -> Path:
+    """A copy of a synthetic dataset's folder without its synthetic.json (as real AIST++ has none): links to its
+    files, in a new folder beside it."""
+    src = Path(root)
+    dst = src.parent / (src.name + "-no-manifest")
+    if not dst.exists():
+        dst.mkdir()
+        for item in src.iterdir():
+            if item.name != "synthetic.json":
+                (dst / item.name).symlink_to(item.resolve())
+    return dst
 
 
 def rows_by_name(results):
@@ -146,8 +157,6 @@ def test_ground_truth_row_matches_an_independent_computation(trained_run):
     cache = trained_run["cache"]
     test = load_sequences(trained_run["root"], "test", cache_dir=cache, progress=False)
     train = load_sequences(trained_run["root"], "train", cache_dir=cache, progress=False)
-    encoder = LibrosaEncoder()
-    features = FeatureCache(cache)
 
     def clips(seqs):  # 5 s clips, 2.5 s stride: the 7 s dances give one clip each, starting at frame 0
         return [s.motion[:150] for s in seqs if len(s.motion) >= 150]
@@ -156,12 +165,12 @@ def test_ground_truth_row_matches_an_independent_computation(trained_run):
     prepared = [_independent_features(j) for j in joints]
     kin = np.stack([kinetic_features(p, fps=60) for p in prepared])
     geo = np.stack([geometric_features(p, fps=60) for p in prepared])
+    manifest = json.loads((Path(trained_run["root"]) / "synthetic.json").read_text())
     ba = []
-    for seq, p in zip(test, prepared):
-        feats = features.features_for_file(
-            encoder, music_path(trained_run["root"], seq.music_id), music_id=seq.music_id
-        )
-        beats = music_beats_from_features(feats)
+    for seq, p in zip(test, prepared):  # BeatAlign against the songs' known beats, not a tracker's
+        song = manifest["music"][seq.music_id]
+        times = song["first_beat_s"] + np.arange(0, 7.0 * song["bpm"] / 60.0) * 60.0 / song["bpm"]
+        beats = np.unique(np.round(times[times < 7.0] * 30).astype(int))
         ba.append(beat_alignment(p, 2 * beats[beats < 150], fps=60))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -182,6 +191,39 @@ def test_ground_truth_row_matches_an_independent_computation(trained_run):
     for metric, value in expected.items():
         assert gt[metric]["mean"] == pytest.approx(value, rel=1e-6, abs=1e-9), metric
     assert expected["BeatAlign"] > 0.1  # the synthetic dances move on the beat: a score that can fail
+    assert results["beats"] == "the synthetic songs' known beats (synthetic.json)"
+    md = (trained_run["dir"] / "evaluation" / "table1" / "results.md").read_text()
+    assert "BeatAlign scored against: the synthetic songs' known beats (synthetic.json)" in md
+
+
+def test_beat_align_scores_against_the_known_beats(trained_run):
+    """A dance that moves on a synthetic song's known beats scores higher against them than the same dance shifted
+    by half a beat; the clips carry those beats apart from the tracker's, and a dataset without synthetic.json
+    (real AIST++) scores against the tracker's and says so."""
+    from dgsdp.evaluation import ClipSource
+
+    spec = ProtocolSpec.from_config({"name": "t", "lengths_seconds": [5], "splits": ["test"]})
+    source = ClipSource(spec, data_root=trained_run["root"], cache_dir=trained_run["cache"], audio_encoder=None,
+                        seed=0, warnings=WarningLog(), progress=False)  # fmt: skip
+    clips = source.clips(source.load_split("test", with_music=False), 5.0)
+    higher = 0
+    for clip in clips:
+        known = clip.known_beats_30fps
+        assert known is not None and np.array_equal(clip.scoring_beats_30fps, known)
+        period = 30 * 60.0 / source._manifest["music"][clip.seq.music_id]["bpm"]
+        assert np.allclose(np.diff(known), period, atol=1.0)  # one beat per period, to the nearest frame
+        joints = pose_to_joints(torch.from_numpy(clip.motion).double()).numpy()
+        half = int(round(period / 2))
+        shifted = np.concatenate([np.repeat(joints[:1], half, axis=0), joints[:-half]])  # half a beat later
+        on = beat_alignment(upsample_joints(joints), 2 * known, fps=60)
+        off = beat_alignment(upsample_joints(shifted), 2 * known, fps=60)
+        higher += on > off
+    assert higher == len(clips)
+    assert "known beats" in source.beat_source
+    real = tmp_copy_without_manifest(trained_run["root"])
+    other = ClipSource(spec, data_root=real, cache_dir=trained_run["cache"], audio_encoder=None, seed=0,
+                       warnings=WarningLog(), progress=False)  # fmt: skip
+    assert other.known_beats(clips[0].seq) is None and "librosa's beat tracker" in other.beat_source
 
 
 def test_longform_and_masking_protocols(trained_run, tmp_path):

@@ -61,15 +61,17 @@ def test_speed_benchmark_against_edges_code(capsys):
 
     best = bench(["--edge-src", EDGE_SRC, "--size", "small", "--seconds", "8", "--repeats", "1", "--features", "35"])
     last = capsys.readouterr().out.strip().splitlines()[-1]
-    fields = dict(part.split("=", 1) for part in last.split())
-    assert set(fields) == {"sampling_speedup_vs_edge", "student_sampling_speedup_vs_edge", "training_speedup_vs_edge"}
+    fields = dict(part.split("=", 1) for part in last.split() if "=" in part)
+    assert last.endswith(" (speed only; quality: docs/distillation.md)")  # the student is timed untrained
+    names = {"sampling_speedup_vs_edge", "student_sampling_speedup_vs_edge", "training_speedup_vs_edge_fp32"}
+    assert set(fields) == names | ({"training_speedup_vs_edge_bf16"} if "dgsdp bf16" in best else set())
     assert float(fields["sampling_speedup_vs_edge"]) == pytest.approx(
         best["edge long_ddim_sample"] / best["dgsdp default"], rel=0.01
     )
     assert float(fields["student_sampling_speedup_vs_edge"]) == pytest.approx(
         best["edge long_ddim_sample"] / best["student 5 steps"], rel=0.01
     )
-    if fields["training_speedup_vs_edge"] != "n/a":  # EDGE's training step needs pytorch3d importable
-        edge = min(best[f"edge {p}"] for p in precisions())  # bf16 only on CPUs with bf16 instructions
-        ours = min(best[f"dgsdp {p}"] for p in precisions())
-        assert float(fields["training_speedup_vs_edge"]) == pytest.approx(edge / ours, rel=0.01)
+    if fields["training_speedup_vs_edge_fp32"] != "n/a":  # EDGE's training step needs pytorch3d importable
+        for p in precisions():  # bf16 only on CPUs with bf16 instructions; each against the same precision
+            ratio = best[f"edge {p}"] / best[f"dgsdp {p}"]
+            assert float(fields[f"training_speedup_vs_edge_{p}"]) == pytest.approx(ratio, rel=0.01)

@@ -17,8 +17,12 @@ fraction of frames floating above it, the seam ratio of the long-form window bou
 against the training data's, the beat alignment score in two variants against the same motion shifted by half a
 beat, and the mean speed by beat phase. Each song has two rows from the same sample: the raw model's (``cleanup=
 false``) and the finished dance's (what generate.py writes, judged against the targets), and a line of what the
-finishing changed; then a summary line of the finished dances and one of the raw model's timing. The metric
-functions below are plain numpy on joints (T, 24, 3).
+finishing changed, and a line of the song's beat by two trackers (librosa's, which the model hears, and the
+independent one of :mod:`dgsdp.audio.beat_tracker`) with the dance's BAS on the independent beats; then a summary
+line of the finished dances (a dance asked for in a genre judged against that genre's training dances; every
+error a failure), one of the raw model's timing (its target needs the independent beats too), one of the
+independent beats (where the trackers disagree, said rather than scored), one of the speed targets both ways
+and one of the tempo folds. The metric functions below are plain numpy on joints (T, 24, 3).
 """
 
 from dgsdp.benchmarks.realsongs.measures import (
@@ -43,10 +47,12 @@ from dgsdp.benchmarks.realsongs.measures import (
 )
 from dgsdp.benchmarks.realsongs.report import (
     SongResult,
+    Tracking,
     format_row,
     genre_of,
     genre_speed_line,
     header,
+    independent_summary,
     low_phase,
     raw_summary,
     style_plan,
@@ -60,7 +66,7 @@ from dgsdp.benchmarks.realsongs.songs import SongInfo, analyse_song, pick_varied
 
 __all__ = [
     "BAS_VARIANTS", "low_phase", "phase_bins", "phase_distance", "raw_summary", "speed_by_phase",
-    "BeatScores", "Reference", "SongFigures", "SongInfo", "SongResult", "analyse_song", "beat_scores", "dance_figures",
+    "BeatScores", "Reference", "SongFigures", "SongInfo", "SongResult", "Tracking", "independent_summary", "analyse_song", "beat_scores", "dance_figures",
     "floating_fraction", "format_row", "genre_of", "genre_speed_line", "header", "main", "mean_joint_speed", "p999_joint_speed", "penetration_cm",
     "pick_varied", "prepare", "run_benchmark", "seam_ratio", "song_family", "style_plan", "style_summary_lines",
     "styles_for", "summary_line", "tempo_line", "training_dances_passing", "training_figures", "window_boundaries", "windowed_speed", "write_versions",
