@@ -8,7 +8,7 @@ stride-0 view of 2^50 elements. :func:`scan_checkpoint` walks the pickle's instr
 make, and refuses a file whose nesting, unfolded size, instruction count, declared storage or tensor views exceed
 :data:`LIMITS`, or whose zip entries unpack to far more than the file. :func:`load_checkpoint` is the one way this
 package opens a checkpoint file (project checkpoints, EDGE's, Jukebox weights): scan, then ``torch.load`` with
-weights only, every failure as one :class:`~dgsdp.errors.CheckpointError` naming the file. docs/safety.md
+weights only, every failure as one :class:`~dgsdp.errors.CheckpointError` naming the file. docs/security.md
 explains the limits.
 """
 
@@ -36,7 +36,7 @@ from dgsdp.errors import CheckpointError, UnsafeCheckpointError
 
 @dataclass(frozen=True)
 class ScanLimits:
-    """Bounds on a checkpoint's pickle stream (docs/safety.md gives the measured values they sit above)."""
+    """Bounds on a checkpoint's pickle stream (docs/security.md gives the measured values they sit above)."""
 
     max_opcodes: int = 500_000  # pickle instructions; a paper-size training checkpoint has 63,494
     max_depth: int = 100  # containers inside containers (and calls); project checkpoints nest 6 to 9 deep

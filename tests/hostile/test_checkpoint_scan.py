@@ -89,7 +89,7 @@ def test_every_loader_refuses_hostile_files_quickly(files, tmp_path, loader, cas
 
 def test_scan_reads_real_checkpoints_within_the_limits(tmp_path):
     """A tiny model's checkpoint, in the zip and the legacy format, passes with room to spare; tied weights (one
-    storage, two names) too. The figures of the quick start and paper-size checkpoints are in docs/safety.md."""
+    storage, two names) too. The figures of the quick start and paper-size checkpoints are in docs/security.md."""
     sys.path.insert(0, str(REPO / "tests" / "generation"))
     from gen_helpers import tiny_model
 
