@@ -118,6 +118,8 @@ def run_benchmark(
     dances = style_plan(songs, genres, None if style is None else str(style), all_styles)
     plans: dict[str | None, Any] = {}
     tracked: dict[Path, TrackedBeats] = {}
+    # a model fed the independent tracker's beats (audio.beat_tracker=flux) is checked against librosa's instead
+    swapped = getattr(generator.audio_encoder, "beat_tracker", "librosa") == "flux"
     first: dict[Path, tuple[Path, str | None]] = {}
     for pair in dances:
         first.setdefault(pair[0], pair)
@@ -129,6 +131,12 @@ def run_benchmark(
         f"training mean joint speed {_fmt(train_speed, '.3f')} m/s from {train_source}",
         file=out,
     )
+    if swapped:
+        print(
+            "this model is fed the independent tracker's beats (audio.beat_tracker=flux): below, \"librosa's beats\" "
+            "are its own (the independent tracker's) and the \"independent beats\" are librosa's tracker's",
+            file=out,
+        )
     print(
         "finishing (the final rows; the raw rows are the model's own output from the same sample): "
         + json.dumps(finishing_settings, separators=(",", ":")),
@@ -177,7 +185,7 @@ def run_benchmark(
             result.checks = result.figures.checks(result.reference)
             result.raw_checks = result.raw.checks(result.reference)
             if song not in tracked:  # the independent tracker's beats, once per song
-                tracked[song] = beats_of_song(song)
+                tracked[song] = independent_beats(song, generator, swapped)
             independent = tracked[song]
             agree, f = trackers_agree(TrackedBeats(bpm_of_beats(beats), np.asarray(beats)), independent)
             result.tracking = Tracking(bpm_of_beats(beats), independent.bpm, agree, f)
@@ -283,6 +291,17 @@ def run_benchmark(
         }
         atomic_write_text(json_path, json.dumps(_no_nan(payload), indent=2, allow_nan=False) + "\n")
     return results
+
+
+def independent_beats(song: Path, generator: Any, swapped: bool) -> TrackedBeats:
+    """The beats of a tracker other than the one whose beats the model is fed: the independent tracker's
+    (:mod:`dgsdp.audio.beat_tracker`), or librosa's for a model fed the independent tracker's (``swapped``)."""
+    if not swapped:
+        return beats_of_song(song)
+    from dgsdp.generation.beatsync import song_beats
+
+    frames = np.asarray(song_beats(song, generator.cache, None))  # the default librosa features: librosa's tracker
+    return TrackedBeats(bpm_of_beats(frames), frames)
 
 
 def _limits(reference: Reference) -> dict[str, Any]:
