@@ -37,6 +37,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from dgsdp.benchmarks.realsongs.measures import mean_joint_speed
 from dgsdp.errors import ConfigError, DgsdpError
 from dgsdp.resources import RESOURCES_DIR
 
@@ -95,13 +96,6 @@ def switch_frames(labels: Sequence[int], first: int, second: int, grid_frames: i
     if before.size == 0:
         return None
     return int((settled - before[-1] - 1) * grid_frames)
-
-
-def mean_joint_speed(joints: np.ndarray, fps: float) -> float:
-    """Mean joint speed (m/s) over every joint and frame step of (T, J, 3) joints."""
-    from dgsdp.benchmarks.realsongs.measures import mean_joint_speed as measure
-
-    return float(measure(np.asarray(joints), fps=fps))
 
 
 # --- the benchmark -------------------------------------------------------------------------------------------------
@@ -180,6 +174,8 @@ class StyleBenchmark:
         self.checkpoint = checkpoint
         self.cache_dir = Path(cfg.paths.cache_dir)
         self.data_root = Path(data_root) if data_root else self._training_root(cfg)
+        if max_clips is not None and max_clips < 2:
+            raise ConfigError(f"--max-clips must be at least 2, got {max_clips}")
         self.max_clips = max_clips
         self.raw_only = bool(raw_only)  # quick screening: the finished clips are not made
         self.progress = progress
@@ -215,7 +211,10 @@ class StyleBenchmark:
         from dgsdp.evaluation.sampling import clip_requests
         from dgsdp.evaluation.warning_log import WarningLog
 
-        spec = ProtocolSpec(name="style", stride_seconds=CLIP_STRIDE_SECONDS, classifier_seconds=CLIP_SECONDS)
+        spec = ProtocolSpec(
+            name="style", stride_seconds=CLIP_STRIDE_SECONDS, classifier_seconds=CLIP_SECONDS,
+            clips_per_trial=self.max_clips,  # at most this many clips, taken from the genres in turn
+        )  # fmt: skip
         source = ClipSource(
             spec, data_root=self.data_root, cache_dir=self.cache_dir, audio_encoder=self.generator.audio_encoder,
             seed=0, warnings=WarningLog(), progress=self.progress,
@@ -225,8 +224,7 @@ class StyleBenchmark:
         train_speed = self._train_speeds(train)
         test = source.load_split("test")
         clips = source.clips(test, CLIP_SECONDS)
-        if self.max_clips is not None:
-            clips = _round_robin(clips, self.max_clips)
+        clips = [clips[i] for i in source.subset(clips, trial=0)]
         genres = [c.seq.genre_index for c in clips]
         beats = [c.beats_30fps for c in clips]
         seed = self.job.settings.seed
@@ -427,16 +425,6 @@ def _looped(path: Path, seconds: float, folder: Path) -> Path:
     out = folder / f"{path.stem}.wav"
     soundfile.write(out, np.tile(audio, repeats)[: int(math.ceil(seconds * rate))], rate)
     return out
-
-
-def _round_robin(clips: list[Any], n: int) -> list[Any]:
-    """At most ``n`` clips, taken in turn from each genre (so a cap keeps the genres balanced)."""
-    by_genre: dict[int, list[Any]] = {}
-    for clip in clips:
-        by_genre.setdefault(clip.seq.genre_index, []).append(clip)
-    queues = [v for _, v in sorted(by_genre.items())]
-    out = [q[i] for i in range(max(len(q) for q in queues)) for q in queues if i < len(q)]
-    return out[:n]
 
 
 # --- report ---------------------------------------------------------------------------------------------------------
