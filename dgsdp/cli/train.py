@@ -150,6 +150,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         style_embedder=style_embedder,
         style_bank_size=0 if bank is None else len(bank),
         groups=group_choices(),
+        skeleton=datamodule.skeleton,
     )
     if resume is not None:
         saved = RunSpec.from_checkpoint(resume, str(cfg.ckpt_path))

@@ -1,6 +1,7 @@
 """Training and evaluation windows of (motion, music, style) from an AIST++-layout dataset.
 
-Each item is a window of ``window_seconds`` of normalised 151-d motion at 30 FPS with the music for the same
+Each item is a window of ``window_seconds`` of normalised motion (pose vectors of the data's skeleton, SMPL-24's
+151-d for AIST++) at 30 FPS with the music for the same
 frames (encoder features, or the raw waveform), the genre index and the music id. Processed motion and audio
 features are cached on disk per file content and settings (see :class:`dgsdp.utils.io.DiskCache`), so a second run
 does no processing and a changed setting never reuses stale data.
@@ -25,7 +26,7 @@ from dgsdp.audio import AudioEncoder, FeatureCache, load_audio
 from dgsdp.audio.tempo import training_tempo_range
 from dgsdp.data.aistpp import check_root, load_motion_pkl, music_path, parse_name, process_motion, read_split
 from dgsdp.errors import ConfigError, DataError, DgsdpError
-from dgsdp.motion import POSE_DIM, MinMaxNormalizer, measure_floor_height
+from dgsdp.motion import MinMaxNormalizer, measure_floor_height, skeleton_from_config
 from dgsdp.motion.representation import CONTACT_CHANNELS
 from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
 from dgsdp.utils.io import DiskCache, file_hash
@@ -46,7 +47,7 @@ def window_starts(n_frames: int, length: int, stride: int) -> list[int]:
 
 @dataclass
 class Sequence:
-    """One processed dance: 151-d motion (T, 151) unnormalised, z-up, and its music."""
+    """One processed dance: motion (T, D) unnormalised, z-up (D: the skeleton's pose size), and its music."""
 
     name: str
     genre: str
@@ -352,8 +353,12 @@ class DanceDataModule(L.LightningDataModule):
     only. If ``root`` has no dataset and ``synthetic`` is set, the synthetic dataset is generated there first, but
     only when asked: ``root`` is the synthetic dataset's own folder (``synthetic_root``) or ``generate_synthetic``
     is true. A mistyped ``data.root`` is an error, not a new dataset.
-    The normaliser is fitted on every frame of the training sequences.
+    The normaliser is fitted on every frame of the training sequences. ``skeleton`` names the motion's skeleton
+    (:func:`dgsdp.motion.skeleton_from_config`; SMPL-X ones read ``smplx_file``), recorded in the run spec.
     """
+
+    # the skeletons this data comes in (data.skeleton must be one): AIST++ pickles hold SMPL's 24 joints
+    skeletons: tuple[str, ...] = ("smpl24",)
 
     def __init__(
         self,
@@ -381,8 +386,16 @@ class DanceDataModule(L.LightningDataModule):
         synthetic_root: str | None = None,
         generate_synthetic: bool = False,
         tempo_augment: tuple[float, float] | None = None,
+        skeleton: str = "smpl24",
+        smplx_file: str | None = None,
     ) -> None:
         super().__init__()
+        self.skeleton = skeleton_from_config(skeleton, smplx_file, option="data.smplx_file")
+        if self.skeleton.name not in self.skeletons:
+            raise ConfigError(
+                f"data.skeleton={skeleton}: {type(self).__name__} reads {' or '.join(self.skeletons)} motion "
+                "(the AIST++ layout holds SMPL poses); choose a dataset recorded on that skeleton"
+            )
         self.tempo_augment = check_tempo_augment(tempo_augment, has_features=audio_encoder is not None)
         self.synthetic_root = None if synthetic_root is None else Path(synthetic_root).expanduser()
         self.generate_synthetic = bool(generate_synthetic)
@@ -404,7 +417,7 @@ class DanceDataModule(L.LightningDataModule):
         self.synthetic = dict(synthetic) if synthetic else None
         self.vocab = vocab
         self.progress = progress
-        self.normalizer = MinMaxNormalizer(POSE_DIM)
+        self.normalizer = MinMaxNormalizer(self.skeleton.pose_dim)
         self.floor_height: float | None = None  # z-up metres, measured on the training motions in setup()
         # (lowest, highest) BPM of the training songs from their music ids, widened by tempo_augment; in setup()
         self.tempo_range_bpm: tuple[float, float] | None = None
@@ -466,10 +479,16 @@ class DanceDataModule(L.LightningDataModule):
 
     def setup(self, stage: str | None = None) -> None:
         train = self.sequences("train")
+        wrong = [s.name for s in train if s.motion.shape[-1] != self.skeleton.pose_dim]
+        if wrong:
+            raise DataError(
+                f"{len(wrong)} training sequences (e.g. {wrong[0]}) are not {self.skeleton.name} pose vectors "
+                f"({self.skeleton.pose_dim} channels); check data.skeleton"
+            )
         if not bool(self.normalizer.fitted):
             self.normalizer.fit(torch.from_numpy(np.concatenate([s.motion for s in train])))
         if self.floor_height is None:
-            self.floor_height = measure_floor_height([s.motion for s in train])
+            self.floor_height = measure_floor_height([s.motion for s in train], skeleton=self.skeleton)
             log.info("floor height of the training motions: %.3f m", self.floor_height)
         if self.tempo_range_bpm is None:
             self.tempo_range_bpm = training_tempo_range([s.music_id for s in train], self.tempo_augment)

@@ -1,13 +1,13 @@
 """The training loss: named terms with weights, summed in one place (EDGE's four terms by default).
 
-- simple: MSE over all 151 channels of the predicted x0 (normalised space).
-- velocity: MSE of first differences over time of the 147 non-contact channels.
-- fk: MSE of FK joint positions (metres, z-up).
-- foot: FK velocity of joints 7, 8, 10, 11 pushed to zero where the model's own predicted contact is above the
+- simple: MSE over all channels of the predicted x0 (normalised space; SMPL-24: 151).
+- velocity: MSE of first differences over time of the non-contact channels (SMPL-24: 147).
+- fk: MSE of FK joint positions (metres, z-up) on the run's skeleton.
+- foot: FK velocity of the skeleton's foot joints (SMPL: 7, 8, 10, 11) pushed to zero where the model's own predicted contact is above the
   threshold.
 - pause (in neither paper; weight 0 = off): the velocity term's error again, weighted per frame by how still the
   true motion is there, ``relu(1 - speed / window mean speed)`` (speed: the mean absolute first difference of the
-  147 channels), so that moving where the training dance holds still costs more. Training dances hold still on
+  non-contact channels), so that moving where the training dance holds still costs more. Training dances hold still on
   the beat; the term is a recipe choice for teaching a short run where to pause (docs/notes/2026-11-25-the-models-own-timing.md).
 
 FK runs on unnormalised values (the normaliser is passed in), so the FK and foot terms are in metres. EDGE runs
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from dgsdp.motion import FOOT_JOINTS, MinMaxNormalizer, unpack_pose
+from dgsdp.motion import SMPL24, MinMaxNormalizer, Skeleton, unpack_pose
 from dgsdp.motion.representation import CONTACT_CHANNELS
 
 
@@ -36,9 +36,14 @@ class LossWeights:
 
 
 def dance_loss(
-    pred_x0: torch.Tensor, x0: torch.Tensor, normalizer: MinMaxNormalizer, weights: LossWeights
+    pred_x0: torch.Tensor,
+    x0: torch.Tensor,
+    normalizer: MinMaxNormalizer,
+    weights: LossWeights,
+    skeleton: Skeleton = SMPL24,
 ) -> dict[str, torch.Tensor]:
-    """Loss terms for predicted and true x0 (B, T, 151), normalised. Returns each term and ``loss`` (weighted sum)."""
+    """Loss terms for predicted and true x0 (B, T, skeleton.pose_dim), normalised. Returns each term and ``loss``
+    (weighted sum)."""
     terms: dict[str, torch.Tensor] = {"simple": F.mse_loss(pred_x0, x0)}
     motion = slice(CONTACT_CHANNELS.stop, None)
     pred_vel, true_vel = pred_x0[:, 1:, motion] - pred_x0[:, :-1, motion], x0[:, 1:, motion] - x0[:, :-1, motion]
@@ -48,13 +53,13 @@ def dance_loss(
         stillness = (1 - speed / speed.mean(dim=1, keepdim=True).clamp_min(1e-8)).clamp_min(0)
         terms["pause"] = (stillness[..., None] * (pred_vel - true_vel).square()).mean()
     if weights.fk or weights.foot:
-        pred_parts = unpack_pose(normalizer.unnormalize(pred_x0))
+        pred_parts = unpack_pose(normalizer.unnormalize(pred_x0), skeleton)
         pred_joints = pred_parts.joints()
         if weights.fk:
-            terms["fk"] = F.mse_loss(pred_joints, unpack_pose(normalizer.unnormalize(x0)).joints())
+            terms["fk"] = F.mse_loss(pred_joints, unpack_pose(normalizer.unnormalize(x0), skeleton).joints())
         if weights.foot:
             contact = (pred_parts.contacts > weights.contact_threshold).to(pred_x0.dtype)  # (B, T, 4)
-            feet = pred_joints[:, :, list(FOOT_JOINTS)]  # (B, T, 4, 3)
+            feet = pred_joints[:, :, list(skeleton.foot_joints)]  # (B, T, 4, 3)
             foot_vel = (feet[:, 1:] - feet[:, :-1]) * contact[:, :-1, :, None]
             terms["foot"] = F.mse_loss(foot_vel, torch.zeros_like(foot_vel))
     terms["loss"] = sum(getattr(weights, name) * value for name, value in terms.items())

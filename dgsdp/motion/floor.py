@@ -1,7 +1,7 @@
 """Feet on the floor: the floor height of a dataset, and a contact-aware cleanup of generated motion.
 
-Floor height. Motion is z-up metres; the floor is the height of the lowest foot joint (SMPL joints 7, 8, 10, 11:
-ankles and toes) when a foot stands on the ground. :func:`measure_floor_height` takes the median over all frames of
+Floor height. Motion is z-up metres; the floor is the height of the lowest foot joint (the skeleton's foot joints,
+SMPL's 7, 8, 10, 11: ankles and toes) when a foot stands on the ground. :func:`measure_floor_height` takes the median over all frames of
 the lowest foot joint's height: dancers have a foot on the floor in most frames, so jumps and lifts do not move it.
 The synthetic dataset gives 0.0 (its lowest foot joint touches z = 0 on every frame); real AIST++ has its floor
 elsewhere. Joints lie inside the body, so the floor by this measure is a few centimetres above the sole.
@@ -52,12 +52,30 @@ import torch
 from scipy.ndimage import distance_transform_edt, gaussian_filter1d, maximum_filter1d
 
 from dgsdp.motion.fk import forward_kinematics
-from dgsdp.motion.representation import POSE_DIM, ROTATION_CHANNELS, unpack_pose
+from dgsdp.motion.representation import ROTATION_CHANNELS, check_pose_dim, unpack_pose
 from dgsdp.motion.rotation import axis_angle_to_matrix, matrix_to_6d, matrix_to_axis_angle
-from dgsdp.motion.skeleton import FOOT_JOINTS, rest_offsets
+from dgsdp.motion.skeleton import SMPL24, Skeleton
 
-# Legs: (hip, knee, ankle, toe) joints and the contact channels (ankle, toe) of each side.
-LEGS: tuple[tuple[tuple[int, int, int, int], tuple[int, int]], ...] = (((1, 4, 7, 10), (0, 2)), ((2, 5, 8, 11), (1, 3)))
+Leg = tuple[tuple[int, int, int, int], tuple[int, int]]
+
+
+def legs(skeleton: Skeleton = SMPL24) -> tuple[Leg, Leg]:
+    """Each side's (hip, knee, ankle, toe) joints and its contact channels (ankle, toe): the ankle and toe are the
+    skeleton's foot joints, the knee the ankle's parent, the hip the knee's (SMPL: (1, 4, 7, 10), (2, 5, 8, 11))."""
+    out = []
+    for side in (0, 1):
+        ankle, toe = skeleton.foot_joints[side], skeleton.foot_joints[2 + side]
+        knee = skeleton.parents[ankle]
+        hip = skeleton.parents[knee] if knee >= 0 else -1
+        if skeleton.parents[toe] != ankle or hip <= 0:
+            raise ValueError(
+                f"skeleton {skeleton.name}: foot joints {skeleton.foot_joints} are not ankle-toe pairs of legs"
+            )
+        out.append(((hip, knee, ankle, toe), (side, 2 + side)))
+    return out[0], out[1]
+
+
+LEGS = legs(SMPL24)
 ROOT_Z_CHANNEL = 6
 _ROOT_ROTATION = slice(ROTATION_CHANNELS.start, ROTATION_CHANNELS.start + 6)
 BODY_UP_AXIS = 1  # the root's local y (SMPL's up) is the body's up axis: its world direction is z when standing
@@ -100,23 +118,27 @@ class FloorCleanup:
                 raise ValueError(f"{name} must be a positive number of radians per second or None, got {value}")
 
 
-def lowest_foot_height(joints: torch.Tensor) -> torch.Tensor:
-    """Height (z) of the lowest foot joint (7, 8, 10, 11) per frame: joints (..., 24, 3) -> (...)."""
-    return joints[..., list(FOOT_JOINTS), 2].amin(dim=-1)
+def lowest_foot_height(joints: torch.Tensor, skeleton: Skeleton = SMPL24) -> torch.Tensor:
+    """Height (z) of the lowest foot joint (SMPL: 7, 8, 10, 11) per frame: joints (..., J, 3) -> (...)."""
+    return joints[..., list(skeleton.foot_joints), 2].amin(dim=-1)
 
 
-def measure_floor_height(motions: torch.Tensor | np.ndarray | list, chunk_frames: int = 65536) -> float:
-    """The floor height (z-up metres) of unnormalised motions (..., 151) or a list of (T, 151): the median over all
-    frames of the lowest foot joint's height (FK in chunks, so a whole dataset fits in memory)."""
+def measure_floor_height(
+    motions: torch.Tensor | np.ndarray | list, chunk_frames: int = 65536, skeleton: Skeleton = SMPL24
+) -> float:
+    """The floor height (z-up metres) of unnormalised motions (..., D) or a list of (T, D), D the skeleton's pose
+    size: the median over all frames of the lowest foot joint's height (FK in chunks, so a whole dataset fits in
+    memory)."""
+    dim = skeleton.pose_dim
     if isinstance(motions, list | tuple):
-        parts = [torch.as_tensor(np.asarray(m)).reshape(-1, POSE_DIM) for m in motions]
-        flat = torch.cat(parts) if parts else torch.zeros(0, POSE_DIM)
+        parts = [torch.as_tensor(np.asarray(m)).reshape(-1, dim) for m in motions]
+        flat = torch.cat(parts) if parts else torch.zeros(0, dim)
     else:
-        flat = torch.as_tensor(motions).reshape(-1, POSE_DIM)
+        flat = torch.as_tensor(motions).reshape(-1, dim)
     if len(flat) == 0:
         raise ValueError("cannot measure the floor height of an empty set of motions")
     heights = [
-        lowest_foot_height(unpack_pose(flat[i : i + chunk_frames].double()).joints())
+        lowest_foot_height(unpack_pose(flat[i : i + chunk_frames].double(), skeleton).joints(), skeleton)
         for i in range(0, len(flat), chunk_frames)
     ]
     value = float(torch.cat(heights).median())
@@ -172,13 +194,13 @@ def _max_air_frames(s: FloorCleanup, fps: float, n_frames: int) -> int:
 
 # --- vertical root correction ---------------------------------------------------------------------------------
 def _vertical_offset(
-    joints_z: np.ndarray, contacts: np.ndarray, floor: float, fps: float, s: FloorCleanup
+    joints_z: np.ndarray, contacts: np.ndarray, floor: float, fps: float, s: FloorCleanup, skeleton: Skeleton
 ) -> np.ndarray:
-    """The root height offset (T,) for joints' heights (T, 24) and cleaned contacts (T, 4)."""
+    """The root height offset (T,) for joints' heights (T, J) and cleaned contacts (T, 4)."""
     n = len(joints_z)
     z = joints_z - floor
     need = -z.min(axis=1)  # the least offset that keeps every joint on or above the floor
-    feet = z[:, list(FOOT_JOINTS)]
+    feet = z[:, list(skeleton.foot_joints)]
     grounded = np.maximum(-feet.min(axis=1), need)  # lowest foot joint on the floor
     any_contact = contacts.any(axis=1)
     lowest_contact = np.where(contacts, feet, np.inf).min(axis=1)
@@ -314,12 +336,18 @@ def _foot_shift(feet_xy: np.ndarray, contacts: np.ndarray, fps: float, s: FloorC
 
 
 def _lock_feet(
-    rotmats: torch.Tensor, root: torch.Tensor, contacts: np.ndarray, fps: float, s: FloorCleanup, free: np.ndarray
+    rotmats: torch.Tensor,
+    root: torch.Tensor,
+    contacts: np.ndarray,
+    fps: float,
+    s: FloorCleanup,
+    free: np.ndarray,
+    skeleton: Skeleton,
 ) -> torch.Tensor:
-    """Local rotations (T, 24, 3, 3) with planted feet held in place (``free``: (T, 2) IK weight per leg)."""
-    joints, globals_ = forward_kinematics(rotmats, root, return_global_rotmats=True)
+    """Local rotations (T, J, 3, 3) with planted feet held in place (``free``: (T, 2) IK weight per leg)."""
+    joints, globals_ = forward_kinematics(rotmats, root, return_global_rotmats=True, skeleton=skeleton)
     out = rotmats.clone()
-    for side, ((hip, knee, ankle, toe), channels) in enumerate(LEGS):
+    for side, ((hip, knee, ankle, toe), channels) in enumerate(legs(skeleton)):
         feet_xy = joints[:, [ankle, toe], :2].numpy()
         shift = _foot_shift(feet_xy, contacts[:, list(channels)], fps, s) * free[:, side, None]
         frames = np.flatnonzero(np.abs(shift).max(axis=1) > 1e-7)
@@ -414,24 +442,31 @@ def limit_tilt_rate(rotations: torch.Tensor, max_step_rad: float, given: np.ndar
     return _rate_limited(rotations, fast, given, catch_up)
 
 
-def _standing_heights() -> np.ndarray:
-    """Heights (4,) of the foot joints (7, 8, 10, 11) above the toes of a flat foot: the ankle sits above its toe
-    by the toe's rest offset, the toes are the floor's reference."""
-    offsets = rest_offsets(torch.float64).numpy()
-    return np.array([-offsets[10, 1], -offsets[11, 1], 0.0, 0.0])
+def _standing_heights(skeleton: Skeleton) -> np.ndarray:
+    """Heights (4,) of the foot joints (SMPL: 7, 8, 10, 11) above the toes of a flat foot: the ankle sits above its
+    toe by the toe's rest offset, the toes are the floor's reference."""
+    offsets = skeleton.rest_offsets(torch.float64).numpy()
+    left_toe, right_toe = skeleton.foot_joints[2], skeleton.foot_joints[3]
+    return np.array([-offsets[left_toe, 1], -offsets[right_toe, 1], 0.0, 0.0])
 
 
-def _leg_channels(side: int) -> list[int]:
-    hip, knee, ankle, _ = LEGS[side][0]
+def _leg_channels(side: int, skeleton: Skeleton) -> list[int]:
+    hip, knee, ankle, _ = legs(skeleton)[side][0]
     return [ROTATION_CHANNELS.start + 6 * j + k for j in (hip, knee, ankle) for k in range(6)]
 
 
 def _clean_one(
-    x: torch.Tensor, fps: float, floor: float, mask: torch.Tensor | None, s: FloorCleanup, stats: dict[str, int]
+    x: torch.Tensor,
+    fps: float,
+    floor: float,
+    mask: torch.Tensor | None,
+    s: FloorCleanup,
+    stats: dict[str, int],
+    skeleton: Skeleton,
 ) -> torch.Tensor:
-    """One motion (T, 151) cleaned; ``stats`` gets how many frames each step touched."""
+    """One motion (T, D) cleaned; ``stats`` gets how many frames each step touched."""
     x = x.double()
-    parts = unpack_pose(x)
+    parts = unpack_pose(x, skeleton)
     contacts = _clean_contacts(parts.contacts.numpy() > s.contact_threshold)
     n = len(x)
     ramp = int(round(s.given_blend_seconds * fps))
@@ -453,20 +488,21 @@ def _clean_one(
         turned = (root != rotmats[:, 0]).flatten(-2).any(-1)  # frames the limit changed
         if turned.any():
             out[:, _ROOT_ROTATION] = torch.where(turned[:, None], matrix_to_6d(root), x[:, _ROOT_ROTATION])
-            parts = unpack_pose(out)
+            parts = unpack_pose(out, skeleton)
             rotmats = parts.rotmats
     if s.lock_feet:
         free = np.ones((n, 2))
         if given is not None:
             for side in (0, 1):
-                free[:, side] = _free_weight(given[:, _leg_channels(side)].any(axis=1), ramp)
+                free[:, side] = _free_weight(given[:, _leg_channels(side, skeleton)].any(axis=1), ramp)
         # Only a contact joint that is down (once the body is on the floor) is planted: the model's contacts
         # alone would also hold a raised foot.
-        z = forward_kinematics(rotmats, parts.root_trans)[..., 2].numpy()
-        z_on_floor = z + (_vertical_offset(z, contacts, floor, fps, s) * root_free)[:, None]
-        planted = contacts & (z_on_floor[:, list(FOOT_JOINTS)] - floor < _standing_heights() + s.plant_height_m)
-        rotmats = _lock_feet(rotmats, parts.root_trans, planted, fps, s, free)
-        changed = sorted({c for side in (0, 1) for c in _leg_channels(side)})
+        z = forward_kinematics(rotmats, parts.root_trans, skeleton=skeleton)[..., 2].numpy()
+        z_on_floor = z + (_vertical_offset(z, contacts, floor, fps, s, skeleton) * root_free)[:, None]
+        feet_z = z_on_floor[:, list(skeleton.foot_joints)]
+        planted = contacts & (feet_z - floor < _standing_heights(skeleton) + s.plant_height_m)
+        rotmats = _lock_feet(rotmats, parts.root_trans, planted, fps, s, free, skeleton)
+        changed = sorted({c for side in (0, 1) for c in _leg_channels(side, skeleton)})
         moved = (rotmats != parts.rotmats).flatten(-2).any(-1).any(-1)  # frames the IK touched
         stats["foot_locked_frames"] = int(moved.sum())
         sixd = matrix_to_6d(rotmats).flatten(-2)
@@ -475,8 +511,8 @@ def _clean_one(
         )
     max_air = _max_air_frames(s, fps, n)
     stats["grounded_air_frames"] = sum(b - a for a, b in _runs(~contacts.any(axis=1)) if b - a > max_air)
-    joints = forward_kinematics(rotmats, parts.root_trans)
-    offset = _vertical_offset(joints[..., 2].numpy(), contacts, floor, fps, s) * root_free
+    joints = forward_kinematics(rotmats, parts.root_trans, skeleton=skeleton)
+    offset = _vertical_offset(joints[..., 2].numpy(), contacts, floor, fps, s, skeleton) * root_free
     out[:, ROOT_Z_CHANNEL] = x[:, ROOT_Z_CHANNEL] + torch.from_numpy(offset)
     if given is not None:
         out = torch.where(mask.bool(), x, out)
@@ -491,15 +527,17 @@ def clean_motion(
     mask: torch.Tensor | None = None,
     settings: FloorCleanup | None = None,
     stats: list[dict[str, int]] | None = None,
+    skeleton: Skeleton = SMPL24,
 ) -> torch.Tensor:
-    """Feet on the floor (see the module docstring): unnormalised motion (T, 151) or (S, T, 151), z-up, at ``fps``,
-    with its floor at ``floor_height`` metres -> the cleaned motion, same shape and dtype. ``mask`` (T, 151) or
-    (S, T, 151), 1 = given: those channels come back exactly as they went in. ``stats``: a list that gets one dict
+    """Feet on the floor (see the module docstring): unnormalised motion (T, D) or (S, T, D) on ``skeleton`` (D its
+    pose size), z-up, at ``fps``, with its floor at ``floor_height`` metres -> the cleaned motion, same shape and
+    dtype. ``mask`` (T, D) or (S, T, D), 1 = given: those channels come back exactly as they went in. ``stats``: a list that gets one dict
     per motion, the frames each step touched (``tilt_limited_frames``, ``turn_limited_frames`` (with the limits
     on), ``foot_locked_frames`` (with foot locking) and ``grounded_air_frames``: frames of runs without contact
     longer than ``max_air_seconds``, brought down)."""
-    if motion.shape[-1] != POSE_DIM or motion.ndim not in (2, 3):
-        raise ValueError(f"clean_motion needs motion (T, {POSE_DIM}) or (S, T, {POSE_DIM}), got {tuple(motion.shape)}")
+    check_pose_dim(motion, skeleton, "clean_motion's motion")
+    if motion.ndim not in (2, 3):
+        raise ValueError(f"clean_motion needs motion (T, D) or (S, T, D), got {tuple(motion.shape)}")
     if not (fps > 0 and math.isfinite(float(floor_height))):
         raise ValueError(f"fps must be positive and the floor height finite, got {fps} and {floor_height}")
     s = settings or FloorCleanup()
@@ -512,7 +550,7 @@ def clean_motion(
     src = batch.detach().cpu()
     notes: list[dict[str, int]] = [{} for _ in range(len(src))]
     cleaned = [
-        _clean_one(src[i], float(fps), float(floor_height), None if masks is None else masks[i], s, notes[i])
+        _clean_one(src[i], float(fps), float(floor_height), None if masks is None else masks[i], s, notes[i], skeleton)
         for i in range(len(src))
     ]
     if stats is not None:

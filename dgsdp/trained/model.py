@@ -24,7 +24,7 @@ from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from dgsdp.audio.tempo import check_tempo_range
 from dgsdp.errors import CheckpointError, ConfigError
-from dgsdp.motion import POSE_DIM, MinMaxNormalizer
+from dgsdp.motion import MinMaxNormalizer, Skeleton
 from dgsdp.registry import Source
 from dgsdp.sampling import Sampler
 from dgsdp.style.embeddings import StyleBank
@@ -57,7 +57,7 @@ class TrainedModel(nn.Module):
         self.style_dim = cond.style_dim
         self.denoiser = spec.build_denoiser(source)
         self.diffusion = spec.build_diffusion(source)
-        self.normalizer = MinMaxNormalizer(POSE_DIM)
+        self.normalizer = MinMaxNormalizer(spec.skeleton.pose_dim)
         # The training data's floor (z-up metres, dgsdp.motion.floor); checkpoints written before it existed load 0.0.
         self.register_buffer("floor_height", torch.tensor(0.0))
         self.register_load_state_dict_pre_hook(_default_floor_height)
@@ -96,6 +96,11 @@ class TrainedModel(nn.Module):
         """The training songs' tempo range (lowest, highest BPM), or None where the checkpoint recorded none."""
         lo, hi = (float(v) for v in self.tempo_range_bpm)
         return None if math.isnan(lo) or math.isnan(hi) else (lo, hi)
+
+    @property
+    def skeleton(self) -> Skeleton:
+        """The skeleton of the run's motion (its pose vectors have ``skeleton.pose_dim`` channels)."""
+        return self.spec.skeleton
 
     @property
     def style_bank(self) -> StyleBank | None:

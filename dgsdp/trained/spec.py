@@ -3,9 +3,10 @@
 A :class:`RunSpec` is made from a composed run config (:meth:`RunSpec.from_config`, at the start of training) or
 from the record stored in a checkpoint (:meth:`RunSpec.from_checkpoint`, when generating, evaluating or resuming).
 It holds the buildable parts as ``_target_`` configs (denoiser, diffusion, loss, optimiser, audio encoder, style
-embedder), the sizes the weights depend on (audio and style dims, style bank size, genres), condition dropout for
-guidance, the EMA decay, the frame rate and window, the seed, and a plain copy of the whole run config for the
-record. The defaults of all of these live in the config files (``dgsdp/conf``); the spec has none of its own, so an
+embedder), the motion's skeleton (:class:`~dgsdp.motion.Skeleton`, stored as plain data: names, parents, offsets;
+a checkpoint without one is SMPL-24's, as every run before skeletons were data), the sizes the weights depend on
+(audio and style dims, style bank size, genres), condition dropout for guidance, the EMA decay, the frame rate and
+window, the seed, and a plain copy of the whole run config for the record. The defaults of all of these live in the config files (``dgsdp/conf``); the spec has none of its own, so an
 old checkpoint that lacks a field fails with a message naming it.
 
 Everything read from a checkpoint is data: parts are built through :func:`dgsdp.registry.build` with
@@ -21,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from dgsdp.errors import CheckpointError, ConfigError
+from dgsdp.motion.skeleton import SMPL24, Skeleton
 from dgsdp.registry import Kind, Source, build, check_plain, resolve
 
 SPEC_FORMAT = 2
@@ -87,6 +89,7 @@ class RunSpec:
     seed: int
     groups: dict[str, str] = field(default_factory=dict)  # config group choices, for dashboards and reports
     record: dict[str, Any] = field(default_factory=dict)  # the whole resolved run config, data only
+    skeleton: Skeleton = SMPL24  # the motion's skeleton: the pose vector has skeleton.pose_dim channels
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.ema_decay < 1.0:
@@ -114,7 +117,10 @@ class RunSpec:
     # --- building ------------------------------------------------------------------------------------------
     def build_denoiser(self, source: Source = "config") -> Any:
         c = self.conditioning
-        return build(self.model, "model", where="model", source=source, audio_dim=c.audio_dim, style_dim=c.style_dim)
+        return build(
+            self.model, "model", where="model", source=source, audio_dim=c.audio_dim, style_dim=c.style_dim,
+            pose_dim=self.skeleton.pose_dim,
+        )  # fmt: skip
 
     def build_diffusion(self, source: Source = "config") -> Any:
         return build(self.diffusion, "diffusion", where="diffusion", source=source)
@@ -151,6 +157,7 @@ class RunSpec:
     def to_dict(self) -> dict[str, Any]:
         """Plain data for a checkpoint (loads with ``torch.load(weights_only=True)``)."""
         out = dataclasses.asdict(self)
+        out["skeleton"] = self.skeleton.to_dict()
         out["format"] = SPEC_FORMAT
         return out
 
@@ -183,6 +190,8 @@ class RunSpec:
                 resolve(kind, node["_target_"], section, "checkpoint")
         cond = need(data, "conditioning", dict, "")
         try:
+            stored_skeleton = data.get("skeleton")  # absent: a run from before skeletons were data, SMPL-24
+            skeleton = SMPL24 if stored_skeleton is None else Skeleton.from_dict(stored_skeleton, "skeleton")
             conditioning = Conditioning(
                 **{
                     f.name: need(cond, f.name, _field_type(f), "conditioning.")
@@ -203,6 +212,7 @@ class RunSpec:
                 seed=need(data, "seed", int, ""),
                 groups={str(k): str(v) for k, v in (data.get("groups") or {}).items()},
                 record=dict(data.get("record") or {}),
+                skeleton=skeleton,
             )
         except ConfigError as e:
             if isinstance(e, CheckpointError):
@@ -218,10 +228,18 @@ class RunSpec:
 
     @classmethod
     def from_config(
-        cls, cfg: Any, *, audio_encoder: Any, style_embedder: Any, style_bank_size: int, groups: Mapping[str, str]
+        cls,
+        cfg: Any,
+        *,
+        audio_encoder: Any,
+        style_embedder: Any,
+        style_bank_size: int,
+        groups: Mapping[str, str],
+        skeleton: Skeleton = SMPL24,
     ) -> RunSpec:
         """The spec of a composed run config (``conf/train.yaml``), with the built audio encoder and style
-        embedder (their sizes decide the denoiser's input sizes)."""
+        embedder (their sizes decide the denoiser's input sizes) and the data's skeleton (its pose size, the
+        denoiser's input and output size)."""
         from omegaconf import OmegaConf
 
         def node(key: str) -> Any:
@@ -272,6 +290,7 @@ class RunSpec:
             seed=int(cfg.seed),
             groups=dict(groups),
             record=OmegaConf.to_container(cfg, resolve=True),
+            skeleton=skeleton,
         )
 
     @classmethod
@@ -288,6 +307,7 @@ class RunSpec:
         diffusion: str = "default",
         loss: str = "edge",
         optimizer: str = "adan",
+        skeleton: Skeleton = SMPL24,
         **model_overrides: Any,
     ) -> RunSpec:
         """A spec from the config files of the named group options, with given conditioning sizes and no audio
@@ -331,6 +351,7 @@ class RunSpec:
             fps=30,
             window_frames=int(model_cfg["seq_len"]),
             seed=0,
+            skeleton=skeleton,
         )
 
     # --- comparison ----------------------------------------------------------------------------------------
@@ -344,9 +365,10 @@ class RunSpec:
             name: p.default for name, p in inspect.signature(cls).parameters.items() if p.default is not p.empty
         }
         # a key an older run did not store has the value it was built with
-        model = {**defaults, **getattr(cls, "legacy_settings", {}), **self.model}
+        model = {**defaults, **getattr(cls, "legacy_settings", {}), **self.model, "pose_dim": self.skeleton.pose_dim}
         return {
             "model": {k: v for k, v in model.items() if k not in SHAPE_FREE_MODEL_KEYS},
+            "skeleton": self.skeleton.to_dict(),
             "audio_dim": c.audio_dim,
             "style_kind": c.style_kind,
             "style_dim": c.style_dim,

@@ -23,7 +23,7 @@ def step_seed(seed: int, step: int, rank: int = 0, world_size: int = 1) -> int:
 
 
 class DanceDiffusion(TrainedModel, L.LightningModule):
-    """Trains the denoiser on normalised 151-d windows; samples with the EMA weights (see :class:`TrainedModel`)."""
+    """Trains the denoiser on normalised windows of pose vectors; samples with the EMA weights (see :class:`TrainedModel`)."""
 
     def __init__(self, spec: RunSpec | Mapping[str, Any], source: Source = "config") -> None:
         super().__init__(spec, source)
@@ -63,7 +63,7 @@ class DanceDiffusion(TrainedModel, L.LightningModule):
         else:
             keep_music = keep_style = torch.ones(b, dtype=torch.bool, device=x0.device)
         pred = denoiser(x_t, t, batch.get("audio"), style, keep_music, keep_style)
-        return dance_loss(pred, x0, self.normalizer, self.loss_weights)
+        return dance_loss(pred, x0, self.normalizer, self.loss_weights, self.skeleton)
 
     # --- Lightning hooks ---------------------------------------------------------------------------------
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
