@@ -1,8 +1,9 @@
-"""Editing masks over frames x channels of the 151-d pose vector (DGSDP Algorithm 2, EDGE Eq. 8).
+"""Editing masks over frames x channels of the pose vector (DGSDP Algorithm 2, EDGE Eq. 8).
 
-A mask ``(T, 151)`` holds 1 where the motion is given and 0 where the model generates it. Joint groups map to
+A mask ``(T, D)`` (D the skeleton's pose size, SMPL-24: 151) holds 1 where the motion is given and 0 where the model generates it. Joint groups map to
 channels with :func:`dgsdp.motion.channels_for_joints`: a joint owns its six 6D-rotation channels, and the root
-translation and foot contacts go with the lower body (pelvis, hips, knees, ankles, toes).
+translation and foot contacts go with the lower body (the skeleton's ``lower_body_joints``: pelvis, hips, knees,
+ankles, toes).
 
 Tasks:
 
@@ -23,7 +24,7 @@ from collections.abc import Sequence
 import torch
 
 from dgsdp.errors import ConfigError
-from dgsdp.motion import LOWER_BODY_JOINTS, POSE_DIM, UPPER_BODY_JOINTS, channels_for_joints
+from dgsdp.motion import SMPL24, Skeleton, channels_for_joints
 
 TASKS: tuple[str, ...] = (
     "none", "seed_motion", "inbetween", "inpaint", "upper_body", "lower_body", "joints", "keyframes",
@@ -38,10 +39,10 @@ def check_task(task: str | None) -> str:
     return name
 
 
-def joint_channels(joints: Sequence[int | str], with_root: bool) -> list[int]:
-    """Channels of the listed joints (SMPL names or indices); ConfigError for an unknown joint."""
+def joint_channels(joints: Sequence[int | str], with_root: bool, skeleton: Skeleton = SMPL24) -> list[int]:
+    """Channels of the listed joints (the skeleton's names or indices); ConfigError for an unknown joint."""
     try:
-        return channels_for_joints(list(joints), with_root_and_contacts=with_root)
+        return channels_for_joints(list(joints), with_root_and_contacts=with_root, skeleton=skeleton)
     except ValueError as e:
         raise ConfigError(str(e)) from e
 
@@ -87,8 +88,10 @@ def build_mask(
     keyframe_seconds: Sequence[float] | None = None,
     fps: float = 30,
     generator: torch.Generator | None = None,
+    skeleton: Skeleton = SMPL24,
 ) -> torch.Tensor:
-    """Mask ``(n_frames, 151)`` float32, 1 = given, for one of :data:`TASKS` (see the module docstring).
+    """Mask ``(n_frames, D)`` float32 over ``skeleton``'s pose vector, 1 = given, for one of :data:`TASKS` (see the
+    module docstring).
 
     seed_frames / end_frames: frames given at the start / end (``seed_motion``, ``inbetween``); inpaint_fraction:
     fraction of frames given at random (``inpaint``, drawn with ``generator``); joints: joint names or indices
@@ -97,7 +100,7 @@ def build_mask(
     task = check_task(task)
     if n_frames <= 0:
         raise ConfigError(f"a mask needs at least one frame, got n_frames={n_frames}")
-    mask = torch.zeros(n_frames, POSE_DIM)
+    mask = torch.zeros(n_frames, skeleton.pose_dim)
     if task == "none":
         return mask
     if task in ("seed_motion", "inbetween"):
@@ -116,26 +119,26 @@ def build_mask(
         return mask
     if task in ("upper_body", "lower_body"):
         # The named group is generated; the other group is given.
-        given = LOWER_BODY_JOINTS if task == "upper_body" else UPPER_BODY_JOINTS
-        mask[:, joint_channels(given, with_root=task == "upper_body")] = 1
+        given = skeleton.lower_body_joints if task == "upper_body" else skeleton.upper_body_joints
+        mask[:, joint_channels(given, with_root=task == "upper_body", skeleton=skeleton)] = 1
         return mask
     if task == "joints":
         if not joints:
             raise ConfigError("task=joints needs a list of joints, e.g. joints=[left_wrist,right_wrist]")
-        mask[:, joint_channels(joints, with_root=with_root)] = 1
+        mask[:, joint_channels(joints, with_root=with_root, skeleton=skeleton)] = 1
         return mask
     # keyframes
     frames = keyframe_indices(n_frames, keyframes, keyframe_seconds, fps)
     if not frames:
         raise ConfigError("task=keyframes needs keyframes (frame numbers) or keyframe_seconds")
-    channels = joint_channels(joints, with_root=with_root) if joints else list(range(POSE_DIM))
+    channels = joint_channels(joints, with_root=with_root, skeleton=skeleton) if joints else list(range(mask.shape[1]))
     rows = torch.tensor(frames)[:, None]
     mask[rows, torch.tensor(channels)[None, :]] = 1
     return mask
 
 
 def given_frames(mask: torch.Tensor) -> torch.Tensor:
-    """Indices of frames with any given channel: mask (T, 151) -> (K,) long."""
+    """Indices of frames with any given channel: mask (T, D) -> (K,) long."""
     return mask.bool().any(dim=-1).nonzero().flatten()
 
 
@@ -157,7 +160,7 @@ def place_known(
     end_frames: int = 30,
     source: str = "the given motion",
 ) -> torch.Tensor:
-    """Lay a given motion ``(N, 151)`` out over the mask's frames: the known motion ``(T, 151)``.
+    """Lay a given motion ``(N, D)`` out over the mask's frames (T, D): the known motion ``(T, D)``.
 
     Accepted layouts: a motion at least as long as the output (its first T frames are used, frame for frame);
     for ``seed_motion`` at least ``seed_frames`` frames (placed at the start); for ``inbetween`` exactly
@@ -168,7 +171,11 @@ def place_known(
     task = check_task(task)
     n_frames = mask.shape[0]
     motion = torch.as_tensor(motion, dtype=torch.float32)
-    known = torch.zeros(n_frames, POSE_DIM)
+    if motion.ndim != 2 or motion.shape[1] != mask.shape[1]:
+        raise ConfigError(
+            f"{source} has shape {tuple(motion.shape)}; the model's pose vectors have {mask.shape[1]} channels"
+        )
+    known = torch.zeros(n_frames, mask.shape[1])
     n = motion.shape[0]
     if n >= n_frames:
         known = motion[:n_frames].clone()

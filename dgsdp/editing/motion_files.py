@@ -1,8 +1,9 @@
 """Given motions for editing (seed motion, keyframes, a body part to keep) read from files.
 
-Accepted: ``.npy`` holding 151-d pose vectors ``(N, 151)`` (unnormalised, z-up, 30 FPS, as the project
-writes them), or ``.pkl`` holding either such an array or an AIST++ motion dict (``smpl_poses (N, 72)``,
-``smpl_trans (N, 3)``, ``smpl_scaling``; 60 FPS unless the dict says ``fps``, as our exported pickles do).
+Accepted: ``.npy`` holding pose vectors ``(N, D)`` of the model's skeleton (unnormalised, z-up, 30 FPS, as the
+project writes them; SMPL-24: D = 151), or ``.pkl`` holding either such an array or, for SMPL-24 models, an AIST++
+motion dict (``smpl_poses (N, 72)``, ``smpl_trans (N, 3)``, ``smpl_scaling``; 60 FPS unless the dict says ``fps``,
+as our exported pickles do).
 """
 
 from __future__ import annotations
@@ -15,41 +16,43 @@ import torch
 
 from dgsdp.data.aistpp import load_motion_pkl, process_motion
 from dgsdp.errors import DataError
-from dgsdp.motion import POSE_DIM
+from dgsdp.motion import SMPL24, Skeleton
 from dgsdp.utils.safe_pickle import load_pickle
 
 MOTION_FILE_SUFFIXES = (".npy", ".pkl")
 AISTPP_SOURCE_FPS = 60
 
 
-def _as_pose_array(data: object, path: Path) -> torch.Tensor:
+def _as_pose_array(data: object, path: Path, skeleton: Skeleton) -> torch.Tensor:
     try:
         arr = np.asarray(data)
     except ValueError:  # ragged nested lists
         arr = np.asarray(data, dtype=object)
-    if arr.ndim == 1 and arr.shape[0] == POSE_DIM:
+    dim = skeleton.pose_dim
+    if arr.ndim == 1 and arr.shape[0] == dim:
         arr = arr[None]
     real = np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
-    if arr.ndim != 2 or arr.shape[1] != POSE_DIM or arr.shape[0] == 0 or not real:
+    if arr.ndim != 2 or arr.shape[1] != dim or arr.shape[0] == 0 or not real:
         raise DataError(
-            f"motion file {path} holds an array of shape {arr.shape} ({arr.dtype}); expected 151-d pose vectors "
-            f"(N, {POSE_DIM}) (contacts, root translation, 24 x 6D rotations; z-up, 30 FPS) or an AIST++ "
-            "motion pickle with smpl_poses (N, 72) and smpl_trans (N, 3)"
+            f"motion file {path} holds an array of shape {arr.shape} ({arr.dtype}); expected {dim}-d pose vectors "
+            f"(N, {dim}) (contacts, root translation, {skeleton.num_joints} x 6D rotations of {skeleton.name}; "
+            "z-up, 30 FPS) or an AIST++ motion pickle with smpl_poses (N, 72) and smpl_trans (N, 3)"
         )
     if not np.isfinite(arr).all():
         raise DataError(f"motion file {path} has NaN or infinite values")
     return torch.from_numpy(arr.astype(np.float32))
 
 
-def load_motion_file(path: str | os.PathLike, fps: int = 30) -> torch.Tensor:
-    """Read a motion as unnormalised 151-d pose vectors ``(N, 151)`` at ``fps``; one DataError for a bad file."""
+def load_motion_file(path: str | os.PathLike, fps: int = 30, skeleton: Skeleton = SMPL24) -> torch.Tensor:
+    """Read a motion as unnormalised pose vectors ``(N, D)`` of ``skeleton`` at ``fps``; one DataError for a bad
+    file."""
     path = Path(path).expanduser()
     if not path.is_file():
         raise DataError(f"motion file {path} does not exist; check the path")
     suffix = path.suffix.lower()
     if suffix not in MOTION_FILE_SUFFIXES:
         raise DataError(
-            f"motion file {path}: unsupported type {suffix!r}; give a .npy of (N, {POSE_DIM}) pose vectors "
+            f"motion file {path}: unsupported type {suffix!r}; give a .npy of (N, {skeleton.pose_dim}) pose vectors "
             "or an AIST++ .pkl motion"
         )
     if suffix == ".npy":
@@ -57,10 +60,15 @@ def load_motion_file(path: str | os.PathLike, fps: int = 30) -> torch.Tensor:
             data = np.load(path, allow_pickle=False)
         except Exception as e:  # noqa: BLE001 - any failure here means an unreadable file for the user
             raise DataError(f"cannot read motion file {path} ({type(e).__name__}: {e})") from e
-        return _as_pose_array(data, path)
+        return _as_pose_array(data, path, skeleton)
     data = load_pickle(path, "motion file")  # plain data and numpy arrays only: never runs code from the file
     if not isinstance(data, dict):
-        return _as_pose_array(data, path)
+        return _as_pose_array(data, path, skeleton)
+    if skeleton != SMPL24:
+        raise DataError(
+            f"motion file {path}: an AIST++ motion pickle holds SMPL-24 poses; this model's skeleton is "
+            f"{skeleton.name}: give a .npy of (N, {skeleton.pose_dim}) pose vectors"
+        )
     try:
         source_fps = int(round(float(data.get("fps", AISTPP_SOURCE_FPS))))
     except (TypeError, ValueError, OverflowError) as e:

@@ -1,6 +1,9 @@
 """From generated or real motion to the inputs of the metric suite.
 
-Motion is 151-d pose vectors at 30 FPS, z-up. The kinetic and geometric features and the beat alignment score
+Motion is pose vectors at 30 FPS, z-up (SMPL-24's 151-d, or another skeleton's). The metrics are defined on SMPL's
+24 joints, so a motion on another skeleton is measured on SMPL's joint layout
+(:func:`dgsdp.motion.smpl24_layout`: SMPL-X's 22 body joints are SMPL's first 22; SMPL's hand joints are the middle fingers' first joints where the
+skeleton has fingers (SMPL-X 52), else the wrists). The kinetic and geometric features and the beat alignment score
 are computed y-up at 60 FPS, as in the reference protocol: joint positions are upsampled from 30 to 60 FPS by
 linear interpolation between consecutive frames (T frames -> 2T - 1 frames, frame 2k at 60 FPS is frame k at 30
 FPS), rotated to y-up and, when the protocol says so, anchored at the first frame's root. PFC is computed on the
@@ -15,17 +18,19 @@ import numpy as np
 import torch
 
 from dgsdp.metrics import anchor_root, geometric_features_batch, kinetic_features_batch, z_up_to_y_up
-from dgsdp.motion import pose_to_joints
+from dgsdp.motion import SMPL24, Skeleton, pose_to_joints, smpl24_layout
 
 MODEL_FPS = 30
 FEATURE_FPS = 60
 UPSAMPLE = FEATURE_FPS // MODEL_FPS
 
 
-def motion_to_joints(motion: np.ndarray | torch.Tensor) -> np.ndarray:
-    """Unnormalised pose vectors (..., T, 151) -> joint positions (..., T, 24, 3), z-up metres, float64."""
+def motion_to_joints(motion: np.ndarray | torch.Tensor, skeleton: Skeleton = SMPL24) -> np.ndarray:
+    """Unnormalised pose vectors (..., T, D) of ``skeleton`` -> joint positions in SMPL's layout (..., T, 24, 3),
+    z-up metres, float64 (the metrics' input)."""
     x = torch.as_tensor(np.asarray(motion), dtype=torch.float64)
-    return pose_to_joints(x).numpy()
+    joints = pose_to_joints(x, skeleton).numpy()
+    return joints[..., smpl24_layout(skeleton), :]
 
 
 def upsample_joints(joints: np.ndarray, factor: int = UPSAMPLE) -> np.ndarray:

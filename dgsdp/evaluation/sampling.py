@@ -50,6 +50,7 @@ def clip_requests(
             mask = build_mask(
                 variant.task, clip.n_frames, seed_frames=spec.seed_frames, end_frames=spec.end_frames,
                 inpaint_fraction=spec.inpaint_fraction, fps=MODEL_FPS, generator=torch.Generator().manual_seed(s),
+                skeleton=generator.skeleton,
             )  # fmt: skip
             known = torch.from_numpy(np.ascontiguousarray(clip.motion)).float()
         requests.append(
@@ -76,7 +77,8 @@ def sample_clips(
     trial: int,
     cleanup: bool = False,
 ) -> list[np.ndarray]:
-    """Generated dances for ``clips`` as 30 FPS z-up joints (T, 24, 3), with the variant's guidance weight.
+    """Generated dances for ``clips`` as 30 FPS z-up joints (T, 24, 3) in SMPL's layout (the metrics' input, see
+    :func:`~dgsdp.evaluation.features.motion_to_joints`), with the variant's guidance weight.
     The model's raw output is scored unless ``cleanup`` finishes the dances as generate.py does
     (:meth:`DanceGenerator.finish`: retimed onto the clip's beats where nothing is given, feet on the floor)."""
     settings = dataclasses.replace(sampling, guidance=dataclasses.replace(sampling.guidance, music=variant.weight))
@@ -84,4 +86,4 @@ def sample_clips(
     motions = generator.generate_many(requests, settings)
     if cleanup:
         motions = [generator.finish(m, c.beats_30fps, mask=r.mask) for m, c, r in zip(motions, clips, requests)]
-    return [motion_to_joints(m[0].numpy()) for m in motions]
+    return [motion_to_joints(m[0].numpy(), generator.skeleton) for m in motions]

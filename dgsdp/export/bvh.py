@@ -1,7 +1,8 @@
 """Write a motion as a BVH file (y-up), e.g. for Blender's BVH importer with its default axes (Forward -Z, Up Y).
 
-The hierarchy is the 24-joint SMPL skeleton (``JOINT_NAMES``, ``PARENTS``); OFFSETs are the rest offsets in SMPL's
-y-up rest frame, so the rest pose (all channels zero) is SMPL's T-pose. Leaf joints (feet, head, hands) get an
+The hierarchy is the motion's skeleton (:class:`~dgsdp.motion.Skeleton`, default SMPL-24: its joint names and
+parents); OFFSETs are its rest offsets in the model's y-up rest frame, so the rest pose (all channels zero) is the
+T-pose. Leaf joints (feet, head, hands) get an
 End Site half as long as their own bone, continuing it, so that every bone has a length in Blender.
 
 Units: metres by default, so that Blender's importer (which takes the file's numbers as Blender units) gives a
@@ -31,13 +32,7 @@ import torch
 
 from dgsdp.errors import DataError
 from dgsdp.export.aistpp_pkl import skeleton_motion
-from dgsdp.motion import (
-    JOINT_NAMES,
-    NUM_JOINTS,
-    PARENTS,
-    points_z_up_to_y_up,
-    root_rotation_z_up_to_y_up,
-)
+from dgsdp.motion import SMPL24, Skeleton, points_z_up_to_y_up, root_rotation_z_up_to_y_up
 from dgsdp.utils.io import atomic_write_text
 
 ROTATION_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
@@ -65,11 +60,7 @@ def matrix_to_euler_zxy(rotmats: np.ndarray) -> np.ndarray:
     return np.stack((z, x, y), axis=-1)
 
 
-def _children(j: int) -> list[int]:
-    return [c for c in range(NUM_JOINTS) if PARENTS[c] == j]
-
-
-def _hierarchy(offsets: np.ndarray, order: list[int]) -> list[str]:
+def _hierarchy(offsets: np.ndarray, order: list[int], skeleton: Skeleton) -> list[str]:
     """HIERARCHY lines; appends joints in depth-first file order to ``order``."""
     lines = ["HIERARCHY"]
 
@@ -79,13 +70,13 @@ def _hierarchy(offsets: np.ndarray, order: list[int]) -> list[str]:
     def visit(j: int, depth: int) -> None:
         pad = "  " * depth
         order.append(j)
-        kind = "ROOT" if PARENTS[j] < 0 else "JOINT"
-        lines.append(f"{pad}{kind} {JOINT_NAMES[j]}")
+        root = skeleton.parents[j] < 0
+        lines.append(f"{pad}{'ROOT' if root else 'JOINT'} {skeleton.joint_names[j]}")
         lines.append(f"{pad}{{")
         lines.append(f"{pad}  OFFSET {fmt(offsets[j])}")
-        channels = ROTATION_CHANNELS if PARENTS[j] >= 0 else POSITION_CHANNELS + ROTATION_CHANNELS
+        channels = POSITION_CHANNELS + ROTATION_CHANNELS if root else ROTATION_CHANNELS
         lines.append(f"{pad}  CHANNELS {len(channels)} {' '.join(channels)}")
-        kids = _children(j)
+        kids = skeleton.children(j)
         for c in kids:
             visit(c, depth + 1)
         if not kids:
@@ -106,22 +97,23 @@ def bvh_text(
     offsets: torch.Tensor | np.ndarray | None = None,
     units: str = "m",
     floor_height: float = 0.0,
+    skeleton: Skeleton = SMPL24,
 ) -> str:
-    """The BVH file contents for a z-up motion (rotmats (T, 24, 3, 3), root_trans (T, 3) metres); see the module
-    docstring for axes, units, channels and the floor. ``offsets``: (24, 3) rest offsets in metres, y-up (default
-    SMPL's); ``floor_height``: the run's floor (z-up metres), written at y = 0."""
+    """The BVH file contents for a z-up motion (rotmats (T, J, 3, 3), root_trans (T, 3) metres) on ``skeleton``;
+    see the module docstring for axes, units, channels and the floor. ``offsets``: (J, 3) rest offsets in metres,
+    y-up (default the skeleton's); ``floor_height``: the run's floor (z-up metres), written at y = 0."""
     if units not in UNIT_SCALE:
         raise DataError(f"BVH units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
-    rot, trans, offs = skeleton_motion(rotmats, root_trans, fps, offsets, floor_height)
+    rot, trans, offs = skeleton_motion(rotmats, root_trans, fps, offsets, floor_height, skeleton)
     scale = UNIT_SCALE[units]
 
     rot = rot.clone()
     rot[:, 0] = root_rotation_z_up_to_y_up(rot[:, 0])
     position = points_z_up_to_y_up(trans).numpy() * scale  # (T, 3)
-    angles_deg = np.degrees(np.unwrap(matrix_to_euler_zxy(rot.numpy()), axis=0))  # (T, 24, 3)
+    angles_deg = np.degrees(np.unwrap(matrix_to_euler_zxy(rot.numpy()), axis=0))  # (T, J, 3)
 
     order: list[int] = []
-    lines = _hierarchy(offs * scale, order)
+    lines = _hierarchy(offs * scale, order, skeleton)
     values = np.concatenate((position, angles_deg[:, order].reshape(len(position), -1)), axis=1)
     lines += ["MOTION", f"Frames: {len(values)}", f"Frame Time: {1.0 / fps:.8f}"]
     lines += [" ".join(f"{v:.6f}" for v in row) for row in values]
@@ -136,11 +128,14 @@ def save_bvh(
     offsets: torch.Tensor | np.ndarray | None = None,
     units: str = "m",
     floor_height: float = 0.0,
+    skeleton: Skeleton = SMPL24,
 ) -> Path:
-    """Write a z-up motion (rotmats (T, 24, 3, 3) local rotations, root_trans (T, 3) metres, at ``fps``) as a
-    y-up BVH file (atomic) with the run's floor (``floor_height``, z-up metres) at y = 0. ``units`` is ``"m"``
-    (Blender at scale 1.0) or ``"cm"``. Returns the path."""
+    """Write a z-up motion (rotmats (T, J, 3, 3) local rotations on ``skeleton``, root_trans (T, 3) metres, at
+    ``fps``) as a y-up BVH file (atomic) with the run's floor (``floor_height``, z-up metres) at y = 0. ``units`` is
+    ``"m"`` (Blender at scale 1.0) or ``"cm"``. Returns the path."""
     path = Path(path)
-    text = bvh_text(rotmats, root_trans, fps=fps, offsets=offsets, units=units, floor_height=floor_height)
+    text = bvh_text(
+        rotmats, root_trans, fps=fps, offsets=offsets, units=units, floor_height=floor_height, skeleton=skeleton
+    )
     atomic_write_text(path, text)
     return path

@@ -1,12 +1,13 @@
-"""Write a motion as a binary glTF (.glb): a skinned SMPL skeleton with a simple body, animated, on a floor.
+"""Write a motion as a binary glTF (.glb): a skinned skeleton with a simple body, animated, on a floor.
 
 What the file holds (glTF 2.0, y-up, metres, one scene):
 
-- 24 joint nodes named as SMPL joints (``JOINT_NAMES``), node ``j`` is SMPL joint ``j``, parented as ``PARENTS``.
-  Each child's translation is its rest offset (SMPL's y-up rest frame), so the nodes' own TRS is the T-pose standing
+- One joint node per joint of the motion's skeleton (:class:`~dgsdp.motion.Skeleton`, default SMPL-24), named as
+  its joints, node ``j`` is joint ``j``, parented as the skeleton's ``parents``.
+  Each child's translation is its rest offset (the model's y-up rest frame), so the nodes' own TRS is the T-pose standing
   with its lowest joint on the floor.
-- ``body``: a low-poly mesh of capsules, one per bone (from a joint to each child; feet, hands and head get a short
-  capsule or a sphere continuing them), each skinned rigidly (weight 1) to the joint that moves it, so any viewer
+- ``body``: a low-poly mesh of capsules, one per bone (from a joint to each child; feet, hands, finger tips and head
+  get a short capsule or a sphere continuing them), each skinned rigidly (weight 1) to the joint that moves it, so any viewer
   shows a body. Left side blue, right side red, centre grey, as in the stick-figure videos.
 - ``floor``: an unskinned square at y = 0 under the whole dance. The floor is the run's floor (``floor_height``,
   z-up metres, the height of the training data's floor: see :mod:`dgsdp.motion.floor`), not the lowest joint of
@@ -34,9 +35,8 @@ import torch
 
 from dgsdp.export.aistpp_pkl import skeleton_motion
 from dgsdp.motion import (
-    JOINT_NAMES,
-    NUM_JOINTS,
-    PARENTS,
+    SMPL24,
+    Skeleton,
     matrix_to_quaternion,
     points_z_up_to_y_up,
     root_rotation_z_up_to_y_up,
@@ -57,16 +57,17 @@ COLOURS = {  # base colour (linear RGBA) per side
     "centre": (0.35, 0.35, 0.35, 1.0),
 }
 FLOOR_COLOUR = (0.8, 0.8, 0.8, 1.0)
+FINGERS = ("index", "middle", "pinky", "ring", "thumb")  # SMPL-X's finger joints: <side>_<finger><1..3>
 
 
-def _side(j: int) -> str:
-    name = JOINT_NAMES[j]
+def _side(name: str) -> str:
     return "left" if name.startswith("left") else "right" if name.startswith("right") else "centre"
 
 
-def _bone_radius(j: int) -> float:
-    """Capsule radius (metres) of the bone from joint ``j`` to one of its children."""
-    name = JOINT_NAMES[j]
+def _bone_radius(name: str) -> float:
+    """Capsule radius (metres) of the bone from the joint called ``name`` to one of its children."""
+    if name.endswith(tuple(f"{finger}{k}" for finger in FINGERS for k in (1, 2, 3))):
+        return 0.01
     if name in ("pelvis", "spine1", "spine2", "spine3"):
         return 0.075
     if name.endswith(("hip", "knee")):
@@ -117,29 +118,33 @@ def _capsule(start: np.ndarray, end: np.ndarray, radius: float) -> tuple[np.ndar
     return np.asarray(positions), np.asarray(normals), np.asarray(faces)
 
 
-def rest_joint_positions(offsets: np.ndarray) -> np.ndarray:
-    """(24, 3) y-up positions of the T-pose (all rotations identity) with the lowest joint at y = 0."""
-    pos = np.zeros((NUM_JOINTS, 3))
-    for j in range(1, NUM_JOINTS):
-        pos[j] = pos[PARENTS[j]] + offsets[j]
+def rest_joint_positions(offsets: np.ndarray, skeleton: Skeleton = SMPL24) -> np.ndarray:
+    """(J, 3) y-up positions of the T-pose (all rotations identity) with the lowest joint at y = 0."""
+    pos = np.zeros((skeleton.num_joints, 3))
+    for j in range(1, skeleton.num_joints):
+        pos[j] = pos[skeleton.parents[j]] + offsets[j]
     pos[:, 1] -= pos[:, 1].min()
     return pos
 
 
-def body_parts(offsets: np.ndarray) -> list[tuple[int, str, np.ndarray, np.ndarray, np.ndarray]]:
+def body_parts(
+    offsets: np.ndarray, skeleton: Skeleton = SMPL24
+) -> list[tuple[int, str, np.ndarray, np.ndarray, np.ndarray]]:
     """Capsules of the body in the bind pose (``rest_joint_positions``): (joint that moves it, side, positions,
     normals, triangles) for each bone."""
-    pos = rest_joint_positions(offsets)
+    pos = rest_joint_positions(offsets, skeleton)
+    names = skeleton.joint_names
     parts = []
-    for j in range(NUM_JOINTS):
-        children = [c for c in range(NUM_JOINTS) if PARENTS[c] == j]
+    for j in range(skeleton.num_joints):
+        children = skeleton.children(j)
         for c in children:
-            side = _side(c) if _side(j) == "centre" else _side(j)
-            parts.append((j, side, *_capsule(pos[j], pos[c], _bone_radius(j))))
-        if not children and JOINT_NAMES[j] == "head":
+            side = _side(names[c]) if _side(names[j]) == "centre" else _side(names[j])
+            parts.append((j, side, *_capsule(pos[j], pos[c], _bone_radius(names[j]))))
+        if not children and names[j] == "head":
             parts.append((j, "centre", *_capsule(pos[j] + [0, 0.07, 0], pos[j] + [0, 0.07, 0], HEAD_RADIUS_M)))
-        elif not children:  # feet and hands continue their bone
-            parts.append((j, _side(j), *_capsule(pos[j], pos[j] + LEAF_FRACTION * offsets[j], _bone_radius(j))))
+        elif not children:  # feet, hands and finger tips continue their bone
+            end = pos[j] + LEAF_FRACTION * offsets[j]
+            parts.append((j, _side(names[j]), *_capsule(pos[j], end, _bone_radius(names[j]))))
     return parts
 
 
@@ -197,31 +202,34 @@ def gltf_document(
     fps: float = 30,
     offsets: torch.Tensor | np.ndarray | None = None,
     floor_height: float = 0.0,
+    skeleton: Skeleton = SMPL24,
 ) -> gl.GLTF2:
-    """The glTF document (binary blob attached) of a z-up motion: rotmats (T, 24, 3, 3) local rotations,
-    root_trans (T, 3) metres, at ``fps``, its floor at ``floor_height``; see the module docstring."""
-    rot, trans, offs = skeleton_motion(rotmats, root_trans, fps, offsets, floor_height)
+    """The glTF document (binary blob attached) of a z-up motion on ``skeleton``: rotmats (T, J, 3, 3) local
+    rotations, root_trans (T, 3) metres, at ``fps``, its floor at ``floor_height``; see the module docstring."""
+    rot, trans, offs = skeleton_motion(rotmats, root_trans, fps, offsets, floor_height, skeleton)
     n_frames = rot.shape[0]
+    n_joints = skeleton.num_joints
 
     rot = rot.clone()
     rot[:, 0] = root_rotation_z_up_to_y_up(rot[:, 0])
-    quats = _continuous(matrix_to_quaternion(rot).numpy())  # (T, 24, 4) x y z w
+    quats = _continuous(matrix_to_quaternion(rot).numpy())  # (T, J, 4) x y z w
     position = points_z_up_to_y_up(trans).numpy()  # (T, 3), the run's floor at y = 0
-    bind = rest_joint_positions(offs)
+    bind = rest_joint_positions(offs, skeleton)
 
     gltf = gl.GLTF2(asset=gl.Asset(version="2.0", generator="dgsdp"))
     buf = _Buffer(gltf)
 
-    # Joint nodes 0..23 in SMPL order, T-pose standing on the floor.
-    for j in range(NUM_JOINTS):
-        children = [c for c in range(NUM_JOINTS) if PARENTS[c] == j]
+    # Joint nodes 0..J-1 in the skeleton's order, T-pose standing on the floor.
+    for j in range(n_joints):
         translation = bind[0] if j == 0 else offs[j]
-        gltf.nodes.append(gl.Node(name=JOINT_NAMES[j], translation=translation.tolist(), children=children))
+        gltf.nodes.append(
+            gl.Node(name=skeleton.joint_names[j], translation=translation.tolist(), children=skeleton.children(j))
+        )
 
     # Body: one primitive per side; every vertex follows exactly one joint.
     materials = {side: _material(gltf, f"body_{side}", colour) for side, colour in COLOURS.items()}
     primitives = []
-    parts = body_parts(offs)
+    parts = body_parts(offs, skeleton)
     for side, material in materials.items():
         pos, nrm, tri, joint_ids = [], [], [], []
         start = 0
@@ -251,15 +259,15 @@ def gltf_document(
     gltf.meshes.append(gl.Mesh(name=BODY_NAME, primitives=primitives))
 
     # Inverse bind matrices: the bind pose has identity rotations, so each is a translation by -position.
-    inverse_bind = np.tile(np.eye(4, dtype=np.float32), (NUM_JOINTS, 1, 1))
+    inverse_bind = np.tile(np.eye(4, dtype=np.float32), (n_joints, 1, 1))
     inverse_bind[:, :3, 3] = -bind
     column_major = np.ascontiguousarray(inverse_bind.transpose(0, 2, 1))
     gltf.skins.append(
         gl.Skin(
-            name="smpl",
-            joints=list(range(NUM_JOINTS)),
+            name="smpl" if skeleton == SMPL24 else skeleton.name,
+            joints=list(range(n_joints)),
             skeleton=0,
-            inverseBindMatrices=buf.add(column_major.reshape(NUM_JOINTS, 16), gl.MAT4, gl.FLOAT),
+            inverseBindMatrices=buf.add(column_major.reshape(n_joints, 16), gl.MAT4, gl.FLOAT),
         )
     )
     gltf.nodes.append(gl.Node(name=BODY_NAME, mesh=0, skin=0))
@@ -291,7 +299,7 @@ def gltf_document(
         gl.AnimationSampler(input=time_accessor, output=buf.add(position.astype(np.float32), gl.VEC3, gl.FLOAT))
     ]
     channels = [gl.AnimationChannel(sampler=0, target=gl.AnimationChannelTarget(node=0, path="translation"))]
-    for j in range(NUM_JOINTS):
+    for j in range(n_joints):
         output = buf.add(quats[:, j].astype(np.float32), gl.VEC4, gl.FLOAT)
         samplers.append(gl.AnimationSampler(input=time_accessor, output=output))
         channels.append(
@@ -319,11 +327,12 @@ def save_glb(
     fps: float = 30,
     offsets: torch.Tensor | np.ndarray | None = None,
     floor_height: float = 0.0,
+    skeleton: Skeleton = SMPL24,
 ) -> Path:
-    """Write a z-up motion (rotmats (T, 24, 3, 3) local rotations, root_trans (T, 3) metres, at ``fps``) as a
-    y-up binary glTF (.glb) with a skinned body, the run's floor (``floor_height``, z-up metres) as a square at
-    y = 0 and one animation (atomic). Returns the path."""
+    """Write a z-up motion (rotmats (T, J, 3, 3) local rotations on ``skeleton``, root_trans (T, 3) metres, at
+    ``fps``) as a y-up binary glTF (.glb) with a skinned body, the run's floor (``floor_height``, z-up metres) as a
+    square at y = 0 and one animation (atomic). Returns the path."""
     path = Path(path)
-    gltf = gltf_document(rotmats, root_trans, fps=fps, offsets=offsets, floor_height=floor_height)
+    gltf = gltf_document(rotmats, root_trans, fps=fps, offsets=offsets, floor_height=floor_height, skeleton=skeleton)
     atomic_write_bytes(path, b"".join(gltf.save_to_bytes()))
     return path

@@ -5,7 +5,8 @@ horizontal position smoothed over time (a zero-lag Gaussian of ``FOLLOW_SMOOTH_S
 zoom for the whole video, chosen so that every joint of every frame stays in view (``follow_cameras``). Pass a
 ``Camera`` (for example from ``fit_camera``) for a fixed view instead. The floor grid is drawn at the true floor,
 ``floor_z`` (the run's floor height, :mod:`dgsdp.motion.floor`; 0 for the synthetic data), not at the lowest joint,
-so jumps leave the floor and joints below it show. Joints are z-up metres (FK output).
+so jumps leave the floor and joints below it show. Joints are z-up metres (FK output) of the motion's skeleton
+(:class:`~dgsdp.motion.Skeleton`, default SMPL-24), whose parents give the bones.
 Bones are coloured by side: left blue, right red, centre grey, and drawn far to near. A title is wrapped onto
 lines, and shrunk if needed, so that it fits the image width.
 
@@ -39,7 +40,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from dgsdp.audio.io import load_audio
 from dgsdp.errors import ConfigError, DataError, DgsdpError
-from dgsdp.motion import JOINT_NAMES, NUM_JOINTS, PARENTS
+from dgsdp.motion import SMPL24, Skeleton
 from dgsdp.utils.deadline import check_time, seconds_left
 from dgsdp.utils.io import atomic_path, owner_gone, temp_tag
 
@@ -49,7 +50,6 @@ LEFT_COLOUR = (40, 90, 200)
 RIGHT_COLOUR = (210, 50, 50)
 CENTRE_COLOUR = (70, 70, 70)
 TEXT_COLOUR = (0, 0, 0)
-HEAD_JOINT = JOINT_NAMES.index("head")
 HEAD_RADIUS_M = 0.09
 GRID_STEP_M = 0.5
 AUDIO_BITRATE = "192k"
@@ -63,8 +63,7 @@ def _font(size_px: int) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
     return ImageFont.load_default(size=size_px)
 
 
-def _side_colour(j: int) -> tuple[int, int, int]:
-    name = JOINT_NAMES[j]
+def _side_colour(name: str) -> tuple[int, int, int]:
     if name.startswith("left"):
         return LEFT_COLOUR
     if name.startswith("right"):
@@ -114,7 +113,7 @@ def fit_camera(
     margin: float = 0.15,
     floor_z: float = 0.0,
 ) -> Camera:
-    """A fixed camera that keeps every joint of every frame in view. joints: (T, 24, 3) or (24, 3), z-up metres.
+    """A fixed camera that keeps every joint of every frame in view. joints: (T, J, 3) or (J, 3), z-up metres.
 
     ``margin`` is the fraction of the view left free around the figure; the floor grid is drawn at ``floor_z``.
     """
@@ -142,7 +141,7 @@ def follow_cameras(
     smooth_seconds: float = FOLLOW_SMOOTH_SECONDS,
     floor_z: float = 0.0,
 ) -> list[Camera]:
-    """One camera per frame following the dancer. joints: (T, 24, 3) z-up metres; the root is joint 0.
+    """One camera per frame following the dancer. joints: (T, J, 3) z-up metres; the root is joint 0.
 
     The target's x and y are the root's, smoothed by a Gaussian of ``smooth_seconds`` (standard deviation; no lag,
     as the filter is centred); its height and the zoom are the same for all frames, chosen so that every joint of
@@ -152,7 +151,7 @@ def follow_cameras(
 
     motion = _as_joints(joints)
     if motion.ndim != 3:
-        raise DataError(f"follow_cameras needs a motion (T, 24, 3), got shape {motion.shape}")
+        raise DataError(f"follow_cameras needs a motion (T, J, 3), got shape {motion.shape}")
     if not fps > 0 or not smooth_seconds >= 0:
         raise ConfigError(f"fps must be positive and smooth_seconds non-negative, got {fps} and {smooth_seconds}")
     root_xy = motion[:, 0, :2]
@@ -176,11 +175,14 @@ def follow_cameras(
     ]
 
 
-def _as_joints(joints: torch.Tensor | np.ndarray) -> np.ndarray:
+def _as_joints(joints: torch.Tensor | np.ndarray, skeleton: Skeleton | None = None) -> np.ndarray:
+    """Joints (T, J, 3) or (J, 3) as float64, J the skeleton's number of joints (any without a skeleton)."""
     arr = joints.detach().cpu().numpy() if torch.is_tensor(joints) else np.asarray(joints)
     arr = arr.astype(np.float64)
-    if arr.shape[-2:] != (NUM_JOINTS, 3) or arr.ndim not in (2, 3) or arr.size == 0:
-        raise DataError(f"joints must be (T, 24, 3) or (24, 3) z-up metres, got shape {arr.shape}")
+    n = "J" if skeleton is None else skeleton.num_joints
+    wrong_count = skeleton is not None and arr.shape[-2:-1] != (skeleton.num_joints,)
+    if arr.ndim not in (2, 3) or arr.size == 0 or arr.shape[-1] != 3 or wrong_count:
+        raise DataError(f"joints must be (T, {n}, 3) or ({n}, 3) z-up metres, got shape {arr.shape}")
     if not np.isfinite(arr).all():
         raise DataError("joints have NaN or infinite values; check the generated motion")
     return arr
@@ -213,14 +215,15 @@ def render_frame(
     camera: Camera | None = None,
     size: tuple[int, int] = (480, 480),
     title: str | None = None,
+    skeleton: Skeleton = SMPL24,
 ) -> np.ndarray:
-    """Draw one pose (24, 3), z-up metres, as a stick figure. Returns an (H, W, 3) uint8 RGB image.
+    """Draw one pose (J, 3) of ``skeleton``, z-up metres, as a stick figure. Returns an (H, W, 3) uint8 RGB image.
 
     ``camera`` defaults to one fitted to this pose alone; pass one fitted to the whole motion (``fit_camera``)
     to keep the view fixed over a video.
     """
     size = _check_size(size)
-    return _draw_frame(joints_t, camera, size, _title_layout(title, size))
+    return _draw_frame(joints_t, camera, size, _title_layout(title, size), skeleton)
 
 
 TitleLayout = tuple[list[str], ImageFont.FreeTypeFont | ImageFont.ImageFont]
@@ -238,11 +241,15 @@ def _title_layout(title: str | None, size: tuple[int, int]) -> TitleLayout | Non
 
 
 def _draw_frame(
-    joints_t: torch.Tensor | np.ndarray, camera: Camera | None, size: tuple[int, int], title: TitleLayout | None
+    joints_t: torch.Tensor | np.ndarray,
+    camera: Camera | None,
+    size: tuple[int, int],
+    title: TitleLayout | None,
+    skeleton: Skeleton,
 ) -> np.ndarray:
-    pose = _as_joints(joints_t)
+    pose = _as_joints(joints_t, skeleton)
     if pose.ndim != 2:
-        raise DataError(f"render_frame draws one pose (24, 3), got shape {pose.shape}")
+        raise DataError(f"render_frame draws one pose ({skeleton.num_joints}, 3), got shape {pose.shape}")
     camera = camera or fit_camera(pose)
     image = Image.new("RGB", size, BACKGROUND)
     draw = ImageDraw.Draw(image)
@@ -252,18 +259,20 @@ def _draw_frame(
     px = camera.project(pose, size)
     _, _, towards = camera.axes()
     nearness = pose @ towards
-    bones = list(range(1, NUM_JOINTS))
-    bones.sort(key=lambda j: nearness[j] + nearness[PARENTS[j]])  # far to near
+    parents, names = skeleton.parents, skeleton.joint_names
+    bones = list(range(1, skeleton.num_joints))
+    bones.sort(key=lambda j: nearness[j] + nearness[parents[j]])  # far to near
     for j in bones:
-        p = PARENTS[j]
-        draw.line([tuple(px[p]), tuple(px[j])], fill=_side_colour(j), width=line_px)
+        p = parents[j]
+        draw.line([tuple(px[p]), tuple(px[j])], fill=_side_colour(names[j]), width=line_px)
     r = max(3.0, 1.2 * line_px)
-    for j in range(NUM_JOINTS):
+    for j in range(skeleton.num_joints):
         x, y = px[j]
-        draw.ellipse([x - r, y - r, x + r, y + r], fill=_side_colour(j))
-    head_r = HEAD_RADIUS_M * camera.pixels_per_metre(size)
-    hx, hy = px[HEAD_JOINT]
-    draw.ellipse([hx - head_r, hy - head_r, hx + head_r, hy + head_r], outline=CENTRE_COLOUR, width=line_px)
+        draw.ellipse([x - r, y - r, x + r, y + r], fill=_side_colour(names[j]))
+    if "head" in names:
+        head_r = HEAD_RADIUS_M * camera.pixels_per_metre(size)
+        hx, hy = px[names.index("head")]
+        draw.ellipse([hx - head_r, hy - head_r, hx + head_r, hy + head_r], outline=CENTRE_COLOUR, width=line_px)
     if title is not None:
         lines, font = title
         y = line_px * 3
@@ -335,12 +344,12 @@ def ffmpeg_available() -> bool:
 
 
 def _frames(
-    joints: np.ndarray, cameras: Sequence[Camera], size: tuple[int, int], title: str | None
+    joints: np.ndarray, cameras: Sequence[Camera], size: tuple[int, int], title: str | None, skeleton: Skeleton
 ) -> Iterator[np.ndarray]:
     layout = _title_layout(title, size)
     for pose, camera in zip(joints, cameras, strict=True):
         check_time()  # a request's time limit (dgsdp.utils.deadline), when one is set
-        yield _draw_frame(pose, camera, size, layout)
+        yield _draw_frame(pose, camera, size, layout, skeleton)
 
 
 def _write_gif(tmp: Path, frames: Iterator[np.ndarray], fps: float) -> None:
@@ -486,9 +495,10 @@ def render_video(
     azimuth_deg: float = 20.0,
     elevation_deg: float = 15.0,
     floor_z: float = 0.0,
+    skeleton: Skeleton = SMPL24,
 ) -> Path:
-    """Render joints (T, 24, 3), z-up metres at ``fps``, as a stick-figure video of T frames, its floor grid at
-    height ``floor_z`` (the run's floor); returns the path.
+    """Render joints (T, J, 3) of ``skeleton``, z-up metres at ``fps``, as a stick-figure video of T frames, its
+    floor grid at height ``floor_z`` (the run's floor); returns the path.
 
     With ffmpeg: an mp4 (H.264, yuv420p) with the music at ``audio_path`` cut to the motion's duration and muxed
     as AAC (see the module docstring). Without ffmpeg, or when ``path`` ends in ``.gif``: a silent GIF next to
@@ -501,9 +511,9 @@ def render_video(
         raise ConfigError(f"videos are written as .mp4 (or .gif without ffmpeg); got {path.name!r}")
     if not fps > 0:
         raise ConfigError(f"fps must be positive, got {fps}")
-    motion = _as_joints(joints)
+    motion = _as_joints(joints, skeleton)
     if motion.ndim != 3:
-        raise DataError(f"render_video needs a motion (T, 24, 3), got shape {motion.shape}")
+        raise DataError(f"render_video needs a motion (T, {skeleton.num_joints}, 3), got shape {motion.shape}")
     size = _check_size(size)
     if not math.isfinite(floor_z):
         raise ConfigError(f"the floor height must be a finite number of metres, got {floor_z}")
@@ -511,7 +521,7 @@ def render_video(
         cameras = [camera] * len(motion)
     else:
         cameras = follow_cameras(motion, fps, azimuth_deg, elevation_deg, floor_z=floor_z)
-    frames = _frames(motion, cameras, size, title)
+    frames = _frames(motion, cameras, size, title, skeleton)
 
     if suffix == ".gif" or not ffmpeg_available():
         if suffix != ".gif":

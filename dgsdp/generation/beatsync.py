@@ -33,7 +33,7 @@ from scipy.signal import argrelextrema
 from dgsdp.audio import AudioEncoder, FeatureCache, LibrosaEncoder
 from dgsdp.errors import DgsdpError
 from dgsdp.metrics.beats import BEAT_COLUMN, kinematic_speed, music_beats_from_features
-from dgsdp.motion import POSE_DIM, pose_to_joints
+from dgsdp.motion import SMPL24, Skeleton, check_pose_dim, pose_to_joints, smpl24_layout
 
 
 @dataclass(frozen=True)
@@ -171,14 +171,17 @@ def sync_to_beats(
     mask: torch.Tensor | None = None,
     settings: BeatSync | None = None,
     stats: list[dict[str, float]] | None = None,
+    skeleton: Skeleton = SMPL24,
 ) -> torch.Tensor:
-    """Unnormalised motion (T, 151) or (S, T, 151) at ``fps`` and music beat frames (B,) of the same frame rate ->
-    the motion retimed so that its speed dips fall on the beats (see the module docstring). With an editing
+    """Unnormalised motion (T, D) or (S, T, D) of ``skeleton`` (D its pose size; the speed is that of its joints in
+    SMPL's layout, :func:`~dgsdp.motion.smpl24_layout`) at ``fps`` and music beat frames (B,) of the same frame
+    rate -> the motion retimed so that its speed dips fall on the beats (see the module docstring). With an editing
     ``mask`` the motion is returned unchanged. ``stats``: a list that gets one dict per motion: ``beats``,
     ``anchored_beats``, and the mean and largest retiming offset ``mean_shift_ms``, ``max_shift_ms`` (how far in
     time a frame's pose moved)."""
-    if motion.shape[-1] != POSE_DIM or motion.ndim not in (2, 3):
-        raise ValueError(f"sync_to_beats needs motion (T, {POSE_DIM}) or (S, T, {POSE_DIM}), got {tuple(motion.shape)}")
+    check_pose_dim(motion, skeleton, "sync_to_beats's motion")
+    if motion.ndim not in (2, 3):
+        raise ValueError(f"sync_to_beats needs motion (T, D) or (S, T, D), got {tuple(motion.shape)}")
     batch = motion if motion.ndim == 3 else motion[None]
     unchanged = {"beats": len(music_beats), "anchored_beats": 0, "mean_shift_ms": 0.0, "max_shift_ms": 0.0}
     if mask is not None or motion.shape[-2] < 3:
@@ -186,8 +189,10 @@ def sync_to_beats(
             stats.extend(dict(unchanged) for _ in batch)
         return motion
     out = []
+    layout = smpl24_layout(skeleton)
     for x in batch:
-        speed = kinematic_speed(pose_to_joints(x.detach().double().cpu()).numpy(), fps)
+        joints = pose_to_joints(x.detach().double().cpu(), skeleton).numpy()[:, layout]
+        speed = kinematic_speed(joints, fps)
         beats, sources = beat_anchors(speed, np.asarray(music_beats), settings)
         times = warp_times(len(x), beats, sources)
         out.append(resample(x, times) if len(beats) else x)

@@ -1,5 +1,5 @@
 """A dance made to a song (:class:`Dance`: motions, joints, SMPL parameters) and the files it is written as
-(:func:`write_motion`: AIST++ pickle, BVH, GLB, video with the music, the raw 151-d array)."""
+(:func:`write_motion`: AIST++ pickle, BVH, GLB, video with the music, the raw pose vectors)."""
 
 from __future__ import annotations
 
@@ -12,16 +12,16 @@ import numpy as np
 import torch
 
 from dgsdp.audio.tempo import TempoFold
-from dgsdp.motion import POSE_DIM, pose_to_joints, unpack_pose
+from dgsdp.motion import SMPL24, Skeleton, check_pose_dim, pose_to_joints, unpack_pose
 from dgsdp.motion.rotation import matrix_to_axis_angle
 from dgsdp.utils.io import atomic_path
 
 
 @dataclass
 class Dance:
-    """The dances made to one song: ``motion`` (num_samples, T, 151), unnormalised, z-up, at ``fps``, on the run's
-    floor at ``floor_height`` (z-up metres). ``joints`` and :meth:`smpl` give them as joint positions and SMPL
-    parameters; :meth:`save` writes the files generate.py writes. ``raw``: the model's own output before the
+    """The dances made to one song: ``motion`` (num_samples, T, D), unnormalised, z-up, at ``fps``, on the run's
+    floor at ``floor_height`` (z-up metres), pose vectors of the run's ``skeleton`` (D = its pose size, SMPL-24:
+    151). ``joints`` and :meth:`smpl` give them as joint positions and SMPL(-X) parameters; :meth:`save` writes the files generate.py writes. ``raw``: the model's own output before the
     finishing (beat sync and floor cleanup; the same as ``motion`` without them), and ``finishing``: one dict per
     sample of what each finishing step changed (:meth:`DanceGenerator.finish`). ``tempo``: the song's tempo and how its
     beats were given to the model (:class:`~dgsdp.audio.tempo.TempoFold`, ``sampling.tempo_fold``)."""
@@ -34,16 +34,17 @@ class Dance:
     raw: torch.Tensor | None = None
     finishing: list[dict[str, float]] = field(default_factory=list)
     tempo: TempoFold = field(default_factory=TempoFold)
+    skeleton: Skeleton = SMPL24
 
     @property
     def joints(self) -> np.ndarray:
-        """Joint positions (num_samples, T, 24, 3), z-up metres (forward kinematics of the SMPL skeleton)."""
-        return pose_to_joints(self.motion.double()).float().numpy()
+        """Joint positions (num_samples, T, J, 3), z-up metres (forward kinematics of the run's skeleton)."""
+        return pose_to_joints(self.motion.double(), self.skeleton).float().numpy()
 
     def smpl(self, sample: int = 0) -> dict[str, np.ndarray]:
-        """SMPL parameters of one sample: ``poses`` (T, 72) axis-angle per joint in SMPL order, ``trans`` (T, 3)
-        root translation in metres (both z-up, as the model's vectors)."""
-        parts = unpack_pose(self.motion[sample].double())
+        """SMPL(-X) parameters of one sample: ``poses`` (T, 3 J) axis-angle per joint in the skeleton's order (SMPL:
+        (T, 72)), ``trans`` (T, 3) root translation in metres (both z-up, as the model's vectors)."""
+        parts = unpack_pose(self.motion[sample].double(), self.skeleton)
         poses = matrix_to_axis_angle(parts.rotmats).reshape(len(self.motion[sample]), -1)
         return {"poses": poses.float().numpy(), "trans": parts.root_trans.float().numpy()}
 
@@ -59,7 +60,7 @@ class Dance:
             name = base if len(samples) == 1 else base.with_name(f"{base.name}_sample{k}")
             written += write_motion(
                 self.motion[k], name, fps=self.fps, audio_path=self.song, formats=formats, title=self.style,
-                floor_height=self.floor_height,
+                floor_height=self.floor_height, skeleton=self.skeleton,
             )  # fmt: skip
         return written
 
@@ -73,19 +74,22 @@ def write_motion(
     formats: Sequence[str] = ("pkl", "bvh", "video", "npy"),
     title: str | None = None,
     floor_height: float = 0.0,
+    skeleton: Skeleton = SMPL24,
 ) -> list[Path]:
-    """Write one motion (T, 151), unnormalised, as ``base`` + .pkl (AIST++), .bvh, .glb, .mp4/.gif and .npy.
+    """Write one motion (T, D) of ``skeleton``, unnormalised, as ``base`` + .pkl (AIST++), .bvh, .glb, .mp4/.gif and
+    .npy.
 
     ``floor_height``: the run's floor (z-up metres, :attr:`DanceGenerator.floor_height`). The data files (.npy, .pkl)
     keep the model's coordinates (the pickle records the floor height); the files for viewing show the true floor:
     BVH and GLB are shifted so that it lies at height 0, the video draws its grid at it."""
     from dgsdp.export import check_formats, render_video, save_aistpp_pkl, save_bvh, save_glb
 
-    if motion.ndim != 2 or motion.shape[-1] != POSE_DIM:
-        raise ValueError(f"write_motion needs one motion (T, {POSE_DIM}), got {tuple(motion.shape)}")
+    check_pose_dim(motion, skeleton, "write_motion's motion")
+    if motion.ndim != 2:
+        raise ValueError(f"write_motion needs one motion (T, {skeleton.pose_dim}), got {tuple(motion.shape)}")
     formats = check_formats(formats)
     base.parent.mkdir(parents=True, exist_ok=True)
-    parts = unpack_pose(motion.double())
+    parts = unpack_pose(motion.double(), skeleton)
     written: list[Path] = []
     if "npy" in formats:
         path = base.with_suffix(".npy")
@@ -93,18 +97,23 @@ def write_motion(
             np.save(f, motion.numpy().astype(np.float32))
         written.append(path)
     if "pkl" in formats:
-        written.append(save_aistpp_pkl(base.with_suffix(".pkl"), parts.rotmats, parts.root_trans, fps, floor_height))
+        path = base.with_suffix(".pkl")
+        written.append(save_aistpp_pkl(path, parts.rotmats, parts.root_trans, fps, floor_height, skeleton))
     if "bvh" in formats:
+        path = base.with_suffix(".bvh")
         written.append(
-            save_bvh(base.with_suffix(".bvh"), parts.rotmats, parts.root_trans, fps, floor_height=floor_height)
+            save_bvh(path, parts.rotmats, parts.root_trans, fps, floor_height=floor_height, skeleton=skeleton)
         )
     if "glb" in formats:
+        path = base.with_suffix(".glb")
         written.append(
-            save_glb(base.with_suffix(".glb"), parts.rotmats, parts.root_trans, fps, floor_height=floor_height)
+            save_glb(path, parts.rotmats, parts.root_trans, fps, floor_height=floor_height, skeleton=skeleton)
         )
     if "video" in formats:
-        joints = pose_to_joints(motion.double()).float()
+        joints = pose_to_joints(motion.double(), skeleton).float()
         written.append(
-            render_video(base.with_suffix(".mp4"), joints, fps, audio_path, title=title, floor_z=floor_height)
+            render_video(
+                base.with_suffix(".mp4"), joints, fps, audio_path, title=title, floor_z=floor_height, skeleton=skeleton
+            )
         )
     return written

@@ -24,9 +24,16 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from dgsdp.motion import MinMaxNormalizer, matrix_slerp, matrix_to_6d, project_rotations, sixd_to_matrix
-from dgsdp.motion.representation import CONTACT_CHANNELS, POSE_DIM, ROOT_CHANNELS, ROTATION_CHANNELS
-from dgsdp.motion.skeleton import NUM_JOINTS
+from dgsdp.motion import (
+    SMPL24,
+    MinMaxNormalizer,
+    Skeleton,
+    matrix_slerp,
+    matrix_to_6d,
+    project_rotations,
+    sixd_to_matrix,
+)
+from dgsdp.motion.representation import CONTACT_CHANNELS, ROOT_CHANNELS
 from dgsdp.sampling import Condition, Guidance, Noise, Sampler
 from dgsdp.sampling.settings import LONGFORM_MODES, ROTATION_PROJECTION_CHOICES
 
@@ -123,13 +130,16 @@ def fuse_overlaps(x: torch.Tensor, n_windows: int, stride: int) -> torch.Tensor:
 
 
 def stitch_windows(windows: torch.Tensor, stride: int) -> torch.Tensor:
-    """Stitch unnormalised windows (n, L, 151) into one motion (L + stride * (n - 1), 151).
+    """Stitch unnormalised windows (n, L, D) of pose vectors (any skeleton's: D = 7 + 6 J) into one motion
+    (L + stride * (n - 1), D).
 
     Over each overlap the ramp weight w runs linearly from 0 (earlier window) to 1 (later window): root
     translation is (1 - w) a + w b, joint rotations are slerped with weight w, contacts come from the earlier
     window where w < 0.5 and from the later one elsewhere. Frames outside overlaps are kept as they are.
     """
-    n, length, _ = windows.shape
+    n, length, dim = windows.shape
+    n_joints = (dim - ROOT_CHANNELS.stop) // 6
+    rotations = slice(ROOT_CHANNELS.stop, dim)
     overlap = length - stride
     out = windows[0].clone()
     if overlap > 0:
@@ -143,10 +153,10 @@ def stitch_windows(windows: torch.Tensor, stride: int) -> torch.Tensor:
             w = ramp[:, None]
             mixed[:, ROOT_CHANNELS] = (1 - w) * a[:, ROOT_CHANNELS] + w * b[:, ROOT_CHANNELS]
             mixed[:, CONTACT_CHANNELS] = torch.where(w < 0.5, a[:, CONTACT_CHANNELS], b[:, CONTACT_CHANNELS])
-            ra = sixd_to_matrix(a[:, ROTATION_CHANNELS].reshape(overlap, NUM_JOINTS, 6))
-            rb = sixd_to_matrix(b[:, ROTATION_CHANNELS].reshape(overlap, NUM_JOINTS, 6))
-            rot = matrix_slerp(ra, rb, ramp[:, None].expand(overlap, NUM_JOINTS))
-            mixed[:, ROTATION_CHANNELS] = matrix_to_6d(rot).reshape(overlap, NUM_JOINTS * 6)
+            ra = sixd_to_matrix(a[:, rotations].reshape(overlap, n_joints, 6))
+            rb = sixd_to_matrix(b[:, rotations].reshape(overlap, n_joints, 6))
+            rot = matrix_slerp(ra, rb, ramp[:, None].expand(overlap, n_joints))
+            mixed[:, rotations] = matrix_to_6d(rot).reshape(overlap, n_joints * 6)
             # The ends of the ramp are exactly one window: keep its values untouched.
             mixed[0] = a[0]
             mixed[-1] = b[-1]
@@ -232,7 +242,7 @@ class ChunkedDenoiser(nn.Module):
 class DanceRequest:
     """One dance to make: ``n_frames`` at 30 FPS, music features (n_frames, Da), per long-form window
     (n_windows, window, Da) or None, style (ds,), per frame
-    (n_frames, ds) or None, an optional editing mask with the given motion (both (n_frames, 151), unnormalised),
+    (n_frames, ds) or None, an optional editing mask with the given motion (both (n_frames, D), unnormalised),
     the number of samples, and where its noise comes from: a seed (or a generator to draw from) of its own, so the
     same request with the same seed gives the same dance, alone or in a batch; None uses the global RNG."""
 
@@ -268,8 +278,10 @@ def sample_items(
     device: torch.device | str = "cpu",
     progress: bool = False,
     windows: bool = False,
+    skeleton: Skeleton = SMPL24,
 ) -> list[torch.Tensor]:
-    """Sample several dances of any lengths in one batch: returns one unnormalised (S, n_frames, 151) per item.
+    """Sample several dances of any lengths in one batch: returns one unnormalised (S, n_frames, D) per item, D the
+    pose size of the run's ``skeleton`` (SMPL-24: 151).
 
     Each dance is cut into windows of ``window`` frames ``stride`` apart (one padded window when shorter); all
     windows of all items are denoised together (``chunk_size`` > 0 bounds the denoiser's batch), neighbours of
@@ -278,7 +290,7 @@ def sample_items(
     motion. A request with a seed draws its noise from it alone. ``clip_x0`` replaces the run's x0 bound.
     ``project`` (``root`` or ``all``; ``none`` = not) makes those 6D rotations of every x0 prediction valid
     rotations, after the fusion (:func:`~dgsdp.motion.project_rotations`; ``sampling.project_rotations``).
-    ``windows=True`` returns each item's normalised windows (S, n_windows, window, 151) instead, as sampled."""
+    ``windows=True`` returns each item's normalised windows (S, n_windows, window, D) instead, as sampled."""
     if not items:
         return []
     if longform not in LONGFORM_MODES:
@@ -288,6 +300,11 @@ def sample_items(
             f"unknown rotation projection {project!r}; use one of {', '.join(ROTATION_PROJECTION_CHOICES)}"
         )
     device = torch.device(device)
+    pose_dim = skeleton.pose_dim
+    if normalizer.data_min.numel() != pose_dim:
+        raise ValueError(
+            f"the normaliser has {normalizer.data_min.numel()} channels, {skeleton.name}'s poses {pose_dim}"
+        )
     if len({it.music is None for it in items}) > 1 or len({it.style is None for it in items}) > 1:
         raise ValueError("the dances of one batch must all have music (or none) and all have a style (or none)")
     layouts = [WindowLayout(it.n_frames, window, stride) for it in items]
@@ -319,8 +336,8 @@ def sample_items(
                 style.append(s[None].expand(rows[-1], -1))
         if any_mask:
             if it.mask is None:
-                masks.append(torch.zeros(rows[-1], window, POSE_DIM, device=device))
-                knowns.append(torch.zeros(rows[-1], window, POSE_DIM, device=device))
+                masks.append(torch.zeros(rows[-1], window, pose_dim, device=device))
+                knowns.append(torch.zeros(rows[-1], window, pose_dim, device=device))
                 given.append(None)
             else:
                 if it.known is None:
@@ -351,7 +368,7 @@ def sample_items(
             x0 = per_dance(fuse_overlaps, x0)
         if project == "none":
             return x0
-        return normalizer.normalize(project_rotations(normalizer.unnormalize(x0), project))
+        return normalizer.normalize(project_rotations(normalizer.unnormalize(x0), project, skeleton))
 
     calls = [0]
 
@@ -370,7 +387,7 @@ def sample_items(
     denoiser = ChunkedDenoiser(sampler.denoiser, chunk_size) if chunk_size > 0 else sampler.denoiser
     run = Sampler(denoiser, sampler.diffusion, style_guidance=sampler.style_guidance, clip_x0=clip_x0)
     x = run.sample(
-        (bounds[-1], window, POSE_DIM),
+        (bounds[-1], window, pose_dim),
         Condition(torch.cat(music) if music else None, torch.cat(style) if style else None),
         method=method,
         steps=steps,
@@ -386,13 +403,13 @@ def sample_items(
     )
     if windows:
         return [
-            x[bounds[i] : bounds[i + 1]].reshape(it.num_samples, layout.n_windows, window, POSE_DIM)
+            x[bounds[i] : bounds[i + 1]].reshape(it.num_samples, layout.n_windows, window, pose_dim)
             for i, (it, layout) in enumerate(zip(items, layouts))
         ]
     motion = normalizer.unnormalize(x)
     out = []
     for i, (it, layout) in enumerate(zip(items, layouts)):
-        part = motion[bounds[i] : bounds[i + 1]].reshape(it.num_samples, layout.n_windows, window, POSE_DIM)
+        part = motion[bounds[i] : bounds[i + 1]].reshape(it.num_samples, layout.n_windows, window, pose_dim)
         dances = torch.stack([stitch_windows(part[s], stride)[: it.n_frames] for s in range(it.num_samples)])
         if any_mask and given[i] is not None:
             # The given channels exactly as given (stitching blends rotations through matrices, and sampling
@@ -422,14 +439,15 @@ def sample_long(
     generator: torch.Generator | None = None,
     device: torch.device | str = "cpu",
     progress: bool = False,
+    skeleton: Skeleton = SMPL24,
 ) -> torch.Tensor:
-    """Generate ``num_samples`` unnormalised motions (S, n_frames, 151) of one dance of any length (see
+    """Generate ``num_samples`` unnormalised motions (S, n_frames, D) of one dance of any length (see
     :func:`sample_items`). music: (n_frames, Da) or None; style: (ds,), per-frame (n_frames, ds) or None;
-    mask / known: (n_frames, 151) editing mask (1 = given) and the given unnormalised motion."""
+    mask / known: (n_frames, D) editing mask (1 = given) and the given unnormalised motion."""
     if mask is not None and known is None:
         raise ValueError("a mask needs the known motion it refers to")
     item = DanceRequest(n_frames, music, style, mask, known, num_samples, generator)
     return sample_items(
         sampler, normalizer, [item], window=window, stride=stride, method=method, steps=steps, eta=eta,
-        guidance=guidance, chunk_size=chunk_size, device=device, progress=progress,
+        guidance=guidance, chunk_size=chunk_size, device=device, progress=progress, skeleton=skeleton,
     )[0]  # fmt: skip

@@ -3,7 +3,7 @@
 :class:`DanceGenerator` holds a trained model with the audio encoder and style embedder it was trained with; it
 turns a song into music features, a style string (genre, free text or schedule) into style vectors, an editing
 task into a mask and known motion, and samples whole songs with long-form generation. :func:`write_motion`
-writes one motion as an AIST++ pickle, a BVH, a video and the raw 151-d array.
+writes one motion as an AIST++ pickle, a BVH, a video and the raw pose vectors.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from dgsdp.generation.beatsync import BeatSync, song_beats, sync_to_beats
 from dgsdp.generation.dance import Dance
 from dgsdp.generation.longform import DanceRequest, WindowLayout, sample_items
 from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styles
-from dgsdp.motion import FloorCleanup, clean_motion
+from dgsdp.motion import FloorCleanup, Skeleton, clean_motion
 from dgsdp.resources import home
 from dgsdp.sampling import SamplingSettings
 from dgsdp.trained import TrainedModel, load_model
@@ -153,6 +153,11 @@ class DanceGenerator:
             max_song_seconds=max_song_seconds,
             text_temperature=text_temperature,
         )
+
+    @property
+    def skeleton(self) -> Skeleton:
+        """The skeleton of the run's motion (pose vectors of ``skeleton.pose_dim`` channels)."""
+        return self.model.skeleton
 
     @property
     def floor_height(self) -> float:
@@ -319,12 +324,13 @@ class DanceGenerator:
     def edit_inputs(
         self, edit: EditSettings, n_frames: int, generator: torch.Generator | None = None
     ) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-        """(mask, known), both (n_frames, 151), or (None, None) without a task."""
+        """(mask, known), both (n_frames, D) (the run's pose size), or (None, None) without a task."""
         task = check_task(edit.task)
         if task == "none":
             return None, None
         if edit.motion is None and edit.motion_file:
-            edit = dataclasses.replace(edit, motion=load_motion_file(edit.motion_file, fps=self.fps))
+            motion = load_motion_file(edit.motion_file, fps=self.fps, skeleton=self.skeleton)
+            edit = dataclasses.replace(edit, motion=motion)
         if edit.motion is None:
             raise ConfigError(
                 f"task={task} needs the given motion: set seed_motion_file (seed_motion, inbetween), "
@@ -342,6 +348,7 @@ class DanceGenerator:
             keyframe_seconds=edit.keyframe_seconds,
             fps=self.fps,
             generator=generator,
+            skeleton=self.skeleton,
         )
         known = place_known(task, edit.motion, mask, seed_frames=edit.seed_frames, end_frames=edit.end_frames)
         return mask, known
@@ -350,9 +357,9 @@ class DanceGenerator:
     def generate_many(
         self, requests: Sequence[DanceRequest], sampling: SamplingSettings | None = None, *, progress: bool = False
     ) -> list[torch.Tensor]:
-        """Unnormalised motions (num_samples, n_frames, 151), one per request, sampled in batches of up to
-        ``sampling.batch_size`` requests of the same length and editing state. A request's result depends only on
-        the request and its seed, not on the batch it was sampled in."""
+        """Unnormalised motions (num_samples, n_frames, D) (D: the run's pose size), one per request, sampled in
+        batches of up to ``sampling.batch_size`` requests of the same length and editing state. A request's result
+        depends only on the request and its seed, not on the batch it was sampled in."""
         sampling = sampling or SamplingSettings()
         window, stride = self.window_layout(sampling)
         groups: dict[tuple[int, bool], list[int]] = {}
@@ -376,7 +383,7 @@ class DanceGenerator:
                     self.model.sampler(), self.model.normalizer, items, window=window, stride=stride,
                     method=sampling.method, steps=sampling.steps, eta=sampling.eta, guidance=guidance,
                     chunk_size=sampling.chunk_size, longform=sampling.longform, clip_x0=sampling.clip_x0,
-                    project=sampling.project_rotations, device=self.device, progress=progress,
+                    project=sampling.project_rotations, device=self.device, progress=progress, skeleton=self.skeleton,
                 )  # fmt: skip
             for i, motion in zip(batch, motions):
                 out[i] = motion.float().cpu()
@@ -426,7 +433,10 @@ class DanceGenerator:
         beats = song_beats(song, self.cache, self.audio_encoder) if retime else None
         stats: list[dict[str, float]] = []
         finished = self.finish(motions, beats, mask=mask, cleanup=cleanup, beat_sync=beat_sync, stats=stats)
-        return Dance(finished, self.fps, self.floor_height, song, plan.text, raw=motions, finishing=stats, tempo=tempo)
+        return Dance(
+            finished, self.fps, self.floor_height, song, plan.text, raw=motions, finishing=stats, tempo=tempo,
+            skeleton=self.skeleton,
+        )  # fmt: skip
 
     def finish(
         self,
@@ -438,7 +448,7 @@ class DanceGenerator:
         beat_sync: bool | BeatSync = True,
         stats: list[dict[str, float]] | None = None,
     ) -> torch.Tensor:
-        """The model's dances (S, T, 151) as generate.py writes them. ``cleanup`` False: unchanged (the model's raw
+        """The model's dances (S, T, D) as generate.py writes them. ``cleanup`` False: unchanged (the model's raw
         output). Otherwise, first, unless ``beat_sync`` is False, each dance is retimed so that its pauses fall on
         the music beats (frames, (K,); :func:`dgsdp.generation.beatsync.sync_to_beats`; not with an editing
         ``mask``, whose given frames would move, nor without beats); then the feet are put on the run's floor
@@ -451,12 +461,16 @@ class DanceGenerator:
                 beats = np.asarray(music_beats)
                 retimed: list[dict[str, float]] = []
                 motions = sync_to_beats(
-                    motions, beats[beats < motions.shape[-2]], self.fps, mask=mask, settings=settings, stats=retimed
-                )
+                    motions, beats[beats < motions.shape[-2]], self.fps, mask=mask, settings=settings, stats=retimed,
+                    skeleton=self.skeleton,
+                )  # fmt: skip
                 notes = [{**n, **r} for n, r in zip(notes, retimed)]
             settings = cleanup if isinstance(cleanup, FloorCleanup) else None
             cleaned: list[dict[str, int]] = []
-            motions = clean_motion(motions, self.fps, self.floor_height, mask=mask, settings=settings, stats=cleaned)
+            motions = clean_motion(
+                motions, self.fps, self.floor_height, mask=mask, settings=settings, stats=cleaned,
+                skeleton=self.skeleton,
+            )  # fmt: skip
             notes = [{**n, **c} for n, c in zip(notes, cleaned)]
         if stats is not None:
             stats.extend(notes)
@@ -475,6 +489,6 @@ class DanceGenerator:
         seed: int | None = 0,
         progress: bool = False,
     ) -> torch.Tensor:
-        """Unnormalised motions (num_samples, n_frames, 151); music (n_frames, Da), style (ds,)/(n_frames, ds)."""
+        """Unnormalised motions (num_samples, n_frames, D); music (n_frames, Da), style (ds,)/(n_frames, ds)."""
         request = DanceRequest(n_frames, music, style, mask, known, num_samples, seed)
         return self.generate_many([request], sampling, progress=progress)[0]

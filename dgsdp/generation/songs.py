@@ -99,7 +99,8 @@ class SongDancer:
         )  # fmt: skip
         edit = settings.edit
         if edit.motion is None and edit.motion_file:  # read once, before any song (one clear error for a bad file)
-            edit = dataclasses.replace(edit, motion=load_motion_file(edit.motion_file, fps=generator.fps))
+            motion = load_motion_file(edit.motion_file, fps=generator.fps, skeleton=generator.skeleton)
+            edit = dataclasses.replace(edit, motion=motion)
         return cls(generator, dataclasses.replace(settings, edit=edit))
 
     @property
@@ -147,7 +148,7 @@ def dance_songs(settings: GenerateSettings) -> GenerationReport:
                 title = f"{song.stem} | {plan.text}" if plan.text else song.stem
                 files += write_motion(
                     motion, settings.output_dir / name, fps=generator.fps, audio_path=song, formats=settings.formats,
-                    title=title, floor_height=generator.floor_height,
+                    title=title, floor_height=generator.floor_height, skeleton=generator.skeleton,
                 )  # fmt: skip
             report.written[str(song)] = files
         except DgsdpError as e:

@@ -53,13 +53,14 @@ from dgsdp.motion.skeleton import (
     joint_index,
     rest_offsets,
     skeleton_from_config,
+    smpl24_layout,
     smplx_skeleton,
 )
 
 __all__ = [
     "FOOT_JOINTS", "JOINT_NAMES", "LOWER_BODY_JOINTS", "NUM_JOINTS", "PARENTS", "POSE_DIM", "REST_OFFSETS_M",
     "SKELETON_NAMES", "SMPL24", "SMPLX52_JOINT_NAMES", "SMPLX52_PARENTS", "UPPER_BODY_JOINTS", "Skeleton",
-    "skeleton_from_config", "smplx_skeleton", "check_pose_dim", "rotation_channels",
+    "skeleton_from_config", "smpl24_layout", "smplx_skeleton", "check_pose_dim", "rotation_channels",
     "FloorCleanup", "MinMaxNormalizer", "PoseParts", "axis_angle_to_matrix", "clean_motion", "lowest_foot_height",
     "measure_floor_height", "axis_angle_to_quaternion", "channels_for_joints",
     "foot_contacts", "forward_kinematics", "joint_index", "matrix_slerp", "matrix_to_6d", "matrix_to_axis_angle",

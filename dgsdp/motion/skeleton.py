@@ -325,6 +325,25 @@ def _smplx_rest_joints(path: str | Path | None, option: str) -> np.ndarray:
     return joints
 
 
+# SMPL-24 joints a skeleton without them stands in for, in order of preference
+SMPL_STAND_INS = {"left_hand": ("left_middle1", "left_wrist"), "right_hand": ("right_middle1", "right_wrist")}
+
+
+def smpl24_layout(skeleton: Skeleton) -> list[int]:
+    """For each of SMPL's 24 joints, the index of the same joint in ``skeleton``: joints (..., J, 3) indexed with it
+    are in SMPL's layout (..., 24, 3), for measures defined on SMPL's joints (the metrics, beat sync's speed).
+    SMPL-X's 22 body joints are SMPL's first 22; SMPL's hand joints (22, 23) are the middle fingers' first joints
+    where the skeleton has fingers, else the wrists."""
+    names = skeleton.joint_names
+    out = []
+    for name in SMPL24.joint_names:
+        found = [c for c in (name, *SMPL_STAND_INS.get(name, ())) if c in names]
+        if not found:
+            raise ValueError(f"skeleton {skeleton.name} has no joint {name!r} (nor a stand-in for it)")
+        out.append(names.index(found[0]))
+    return out
+
+
 def skeleton_from_config(
     name: str, smplx_file: str | Path | None = None, *, option: str = "skeleton.smplx_file"
 ) -> Skeleton:

@@ -347,7 +347,8 @@ class Studio:
                 dance = self.engine.run(request, folder / song.stem, progress=True)
                 elapsed = time.perf_counter() - started
             progress(0.98, desc="preparing the viewer")
-            joints_path = write_joints_json(folder / "viewer.json", dance.joints, dance.fps)  # marks it finished
+            # writing it marks the run finished
+            joints_path = write_joints_json(folder / "viewer.json", dance.joints, dance.fps, skeleton=dance.skeleton)
         except Exception:
             shutil.rmtree(folder, ignore_errors=True)  # nothing half-written stays behind
             raise

@@ -29,7 +29,7 @@ from dgsdp.audio.io import audio_duration_seconds
 from dgsdp.audio.tempo import TempoFold
 from dgsdp.errors import AudioError, ConfigError
 from dgsdp.generation import DanceGenerator, EditSettings, Finishing, write_motion
-from dgsdp.motion import pose_to_joints
+from dgsdp.motion import SMPL24, Skeleton, pose_to_joints
 from dgsdp.sampling import GuidanceSettings, SamplingSettings
 
 EDITS = ("none", "upper_body", "lower_body", "keyframes", "continue", "range")
@@ -82,7 +82,8 @@ class DanceRequest:
 
 @dataclass
 class Dance:
-    """A generated dance: the motion (T, 151), its joints (T, 24, 3) z-up metres, and the files written."""
+    """A generated dance: the motion (T, D), its joints (T, J, 3) z-up metres on the run's ``skeleton``, and the
+    files written."""
 
     motion: torch.Tensor
     joints: np.ndarray
@@ -91,6 +92,7 @@ class Dance:
     style: str | None
     files: list[Path] = field(default_factory=list)
     tempo: TempoFold = field(default_factory=TempoFold)  # how the song's beats were given to the model
+    skeleton: Skeleton = SMPL24
 
 
 class Engine:
@@ -166,9 +168,10 @@ class Engine:
             formats=output_formats(request.video),
             title=title,
             floor_height=gen.floor_height,
+            skeleton=gen.skeleton,
         )
-        joints = pose_to_joints(motion.double()).float().numpy()
-        return Dance(motion, joints, gen.fps, request.song, plan.text, files, tempo=danced.tempo)
+        joints = pose_to_joints(motion.double(), gen.skeleton).float().numpy()
+        return Dance(motion, joints, gen.fps, request.song, plan.text, files, tempo=danced.tempo, skeleton=gen.skeleton)
 
 
 def edit_settings(edit: Edit | None, n_frames: int, fps: int) -> EditSettings:

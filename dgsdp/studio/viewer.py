@@ -14,26 +14,27 @@ from pathlib import Path
 
 import numpy as np
 
-from dgsdp.motion import PARENTS
+from dgsdp.motion import SMPL24, Skeleton
 from dgsdp.utils.io import atomic_write_text
 
-LEFT = (1, 4, 7, 10, 13, 16, 18, 20, 22)
-RIGHT = (2, 5, 8, 11, 14, 17, 19, 21, 23)
 
-
-def write_joints_json(path: Path, joints: np.ndarray, fps: float, floor_z: float = 0.0) -> Path:
-    """Write joint positions (T, 24, 3), z-up metres, as the viewer's JSON (millimetre precision)."""
+def write_joints_json(
+    path: Path, joints: np.ndarray, fps: float, floor_z: float = 0.0, skeleton: Skeleton = SMPL24
+) -> Path:
+    """Write joint positions (T, J, 3) of ``skeleton``, z-up metres, as the viewer's JSON (millimetre precision):
+    the bones are the skeleton's parents, coloured by side (its joint names' left/right)."""
     joints = np.asarray(joints, dtype=np.float64)
-    side = ["c"] * joints.shape[1]
-    for j in LEFT:
-        side[j] = "l"
-    for j in RIGHT:
-        side[j] = "r"
+    if joints.ndim != 3 or joints.shape[1:] != (skeleton.num_joints, 3):
+        raise ValueError(
+            f"the viewer needs joints (T, {skeleton.num_joints}, 3) of {skeleton.name}, got {joints.shape}"
+        )
+    side = ["l" if n.startswith("left") else "r" if n.startswith("right") else "c" for n in skeleton.joint_names]
     data = {
         "fps": float(fps),
         "n_frames": int(joints.shape[0]),
         "n_joints": int(joints.shape[1]),
-        "parents": list(PARENTS),
+        "parents": list(skeleton.parents),
+        "head": skeleton.joint_names.index("head") if "head" in skeleton.joint_names else -1,
         "side": side,
         "floor_z": float(floor_z),
         # integer millimetres keep the file small and exact to what the viewer needs
@@ -152,11 +153,14 @@ function draw(frame) {
     ctx.lineWidth = Math.max(2, 0.06 * 1.25 * h / Math.max(screen[j][2], 0.2));
     ctx.beginPath(); ctx.moveTo(screen[p][0], screen[p][1]); ctx.lineTo(screen[j][0], screen[j][1]); ctx.stroke();
   }
-  // head
-  const head = screen[Math.min(15, n - 1)];
-  ctx.fillStyle = '#555b66';
-  ctx.beginPath(); ctx.arc(head[0], head[1], Math.max(4, 0.1 * 1.25 * h / Math.max(head[2], 0.2)), 0, 2 * Math.PI);
-  ctx.fill();
+  // head (the skeleton's "head" joint; files without the field: SMPL's joint 15)
+  const headIndex = d.head === undefined ? Math.min(15, n - 1) : d.head;
+  if (headIndex >= 0) {
+    const head = screen[headIndex];
+    ctx.fillStyle = '#555b66';
+    ctx.beginPath(); ctx.arc(head[0], head[1], Math.max(4, 0.1 * 1.25 * h / Math.max(head[2], 0.2)), 0, 2 * Math.PI);
+    ctx.fill();
+  }
   if (d.label) {
     ctx.fillStyle = '#333';
     ctx.font = '14px sans-serif';

@@ -9,6 +9,8 @@ import lightning as L
 import numpy as np
 import torch
 
+from dgsdp.motion.skeleton import SMPL24, Skeleton
+
 log = logging.getLogger(__name__)
 
 
@@ -49,20 +51,20 @@ class SampleRenderCallback(L.Callback):
         )
         motion = torch.cat(generator.generate_many(requests, SamplingSettings(steps=self.sampling_steps)))
         folder = Path(trainer.default_root_dir) / "samples" / f"epoch{trainer.current_epoch:04d}"
-        self.write(folder, motion, floor_z=float(pl_module.floor_height))
+        self.write(folder, motion, floor_z=float(pl_module.floor_height), skeleton=pl_module.skeleton)
 
     @staticmethod
-    def write(folder: Path, motion: torch.Tensor, floor_z: float = 0.0) -> None:
+    def write(folder: Path, motion: torch.Tensor, floor_z: float = 0.0, skeleton: Skeleton = SMPL24) -> None:
         from dgsdp.motion import pose_to_joints
 
         folder.mkdir(parents=True, exist_ok=True)
-        joints = pose_to_joints(motion.float().cpu())
+        joints = pose_to_joints(motion.float().cpu(), skeleton)
         for i, j in enumerate(joints):
             np.save(folder / f"sample{i}.npy", j.numpy())
             try:
                 from dgsdp.export import render_video
 
-                render_video(folder / f"sample{i}.mp4", j, floor_z=floor_z)
+                render_video(folder / f"sample{i}.mp4", j, floor_z=floor_z, skeleton=skeleton)
             except ImportError:  # rendering is optional for this hook
                 pass
         log.info("wrote %d samples to %s", len(joints), folder)
