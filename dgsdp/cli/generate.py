@@ -37,7 +37,7 @@ def edit_settings(cfg: DictConfig) -> EditSettings:
     if task != "none" and not file:
         raise ConfigError(
             f"task={task} needs the given motion: set seed_motion_file (seed_motion, inbetween), "
-            "keyframes_file (keyframes) or motion_file (any task); .npy (N, 151) or AIST++ .pkl"
+            "keyframes_file (keyframes) or motion_file (any task); .npy (N, D) pose vectors or AIST++ .pkl"
         )
     return EditSettings(
         task=task,

@@ -3,12 +3,12 @@
 - simple: MSE over all channels of the predicted x0 (normalised space; SMPL-24: 151).
 - velocity: MSE of first differences over time of the non-contact channels (SMPL-24: 147).
 - fk: MSE of FK joint positions (metres, z-up) on the run's skeleton.
-- foot: FK velocity of the skeleton's foot joints (SMPL: 7, 8, 10, 11) pushed to zero where the model's own predicted contact is above the
-  threshold.
-- pause (in neither paper; weight 0 = off): the velocity term's error again, weighted per frame by how still the
-  true motion is there, ``relu(1 - speed / window mean speed)`` (speed: the mean absolute first difference of the
-  non-contact channels), so that moving where the training dance holds still costs more. Training dances hold still on
-  the beat; the term is a recipe choice for teaching a short run where to pause (docs/notes/2026-11-25-the-models-own-timing.md).
+- foot: FK velocity of the skeleton's foot joints (SMPL: 7, 8, 10, 11) pushed to zero where the model's own predicted
+  contact is above the threshold.
+- pause (in neither paper; weight 0 = off): the velocity term's error again, weighted per frame by how still the true
+  motion is there, ``relu(1 - speed / window mean speed)`` (speed: the mean absolute first difference of the non-contact
+  channels), so that moving where the training dance holds still costs more. Training dances hold still on the beat; the
+  term is a recipe choice for teaching a short run where to pause (docs/notes/2026-11-25-the-models-own-timing.md).
 
 FK runs on unnormalised values (the normaliser is passed in), so the FK and foot terms are in metres. EDGE runs
 FK on normalised values; its author reported no difference. Unnormalising keeps the joint positions physical.

@@ -1,4 +1,4 @@
-"""Editing: masks over frames x channels of the 151-d vector and the given motions they refer to."""
+"""Editing: masks over frames x channels of the pose vector and the given motions they refer to."""
 
 from dgsdp.editing.masks import (
     TASKS,

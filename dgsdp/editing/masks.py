@@ -1,9 +1,9 @@
 """Editing masks over frames x channels of the pose vector (DGSDP Algorithm 2, EDGE Eq. 8).
 
-A mask ``(T, D)`` (D the skeleton's pose size, SMPL-24: 151) holds 1 where the motion is given and 0 where the model generates it. Joint groups map to
-channels with :func:`dgsdp.motion.channels_for_joints`: a joint owns its six 6D-rotation channels, and the root
-translation and foot contacts go with the lower body (the skeleton's ``lower_body_joints``: pelvis, hips, knees,
-ankles, toes).
+A mask ``(T, D)`` (D the skeleton's pose size, SMPL-24: 151) holds 1 where the motion is given and 0 where the model
+generates it. Joint groups map to channels with :func:`dgsdp.motion.channels_for_joints`: a joint owns its six
+6D-rotation channels, and the root translation and foot contacts go with the lower body (the skeleton's
+``lower_body_joints``: pelvis, hips, knees, ankles, toes).
 
 Tasks:
 

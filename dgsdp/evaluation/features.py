@@ -1,14 +1,12 @@
 """From generated or real motion to the inputs of the metric suite.
 
-Motion is pose vectors at 30 FPS, z-up (SMPL-24's 151-d, or another skeleton's). The metrics are defined on SMPL's
-24 joints, so a motion on another skeleton is measured on SMPL's joint layout
-(:func:`dgsdp.motion.smpl24_layout`: SMPL-X's 22 body joints are SMPL's first 22; SMPL's hand joints are the middle fingers' first joints where the
-skeleton has fingers (SMPL-X 52), else the wrists). The kinetic and geometric features and the beat alignment score
-are computed y-up at 60 FPS, as in the reference protocol: joint positions are upsampled from 30 to 60 FPS by
-linear interpolation between consecutive frames (T frames -> 2T - 1 frames, frame 2k at 60 FPS is frame k at 30
-FPS), rotated to y-up and, when the protocol says so, anchored at the first frame's root. PFC is computed on the
-30 FPS z-up joints as EDGE defines it.
-"""
+Motion is pose vectors at 30 FPS, z-up (SMPL-24's 151-d, or another skeleton's). The metrics are defined on SMPL's 24
+joints, so a motion on another skeleton is measured on SMPL's joint layout (:func:`dgsdp.motion.smpl24_layout`: SMPL-X's
+22 body joints are SMPL's first 22; SMPL's hand joints are the middle fingers' first joints where the skeleton has
+fingers (SMPL-X 52), else the wrists). The kinetic and geometric features and the beat alignment score are computed y-up
+at 60 FPS, as in the reference protocol: joint positions are upsampled from 30 to 60 FPS by linear interpolation between
+consecutive frames (T frames -> 2T - 1 frames, frame 2k at 60 FPS is frame k at 30 FPS), rotated to y-up and, when the
+protocol says so, anchored at the first frame's root. PFC is computed on the 30 FPS z-up joints as EDGE defines it."""
 
 from __future__ import annotations
 

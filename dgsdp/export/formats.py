@@ -12,7 +12,7 @@ MOTION_FORMATS: dict[str, str] = {
     "bvh": "BVH for Blender (.bvh)",
     "glb": "glTF binary with a skinned body, for Blender, Unity and game engines (.glb)",
     "video": "stick-figure video with the music (.mp4; a silent .gif without ffmpeg)",
-    "npy": "raw 151-d pose vectors (.npy)",
+    "npy": "raw pose vectors (.npy)",
 }
 """Every format ``write_motion`` writes, with what it is."""
 

@@ -2,13 +2,12 @@
 
 What the file holds (glTF 2.0, y-up, metres, one scene):
 
-- One joint node per joint of the motion's skeleton (:class:`~dgsdp.motion.Skeleton`, default SMPL-24), named as
-  its joints, node ``j`` is joint ``j``, parented as the skeleton's ``parents``.
-  Each child's translation is its rest offset (the model's y-up rest frame), so the nodes' own TRS is the T-pose standing
-  with its lowest joint on the floor.
-- ``body``: a low-poly mesh of capsules, one per bone (from a joint to each child; feet, hands, finger tips and head
-  get a short capsule or a sphere continuing them), each skinned rigidly (weight 1) to the joint that moves it, so any viewer
-  shows a body. Left side blue, right side red, centre grey, as in the stick-figure videos.
+- One joint node per joint of the motion's skeleton (:class:`~dgsdp.motion.Skeleton`, default SMPL-24), named as its
+  joints, node ``j`` is joint ``j``, parented as the skeleton's ``parents``. Each child's translation is its rest offset
+  (the model's y-up rest frame), so the nodes' own TRS is the T-pose standing with its lowest joint on the floor.
+- ``body``: a low-poly mesh of capsules, one per bone (from a joint to each child; feet, hands, finger tips and head get
+  a short capsule or a sphere continuing them), each skinned rigidly (weight 1) to the joint that moves it, so any
+  viewer shows a body. Left side blue, right side red, centre grey, as in the stick-figure videos.
 - ``floor``: an unskinned square at y = 0 under the whole dance. The floor is the run's floor (``floor_height``,
   z-up metres, the height of the training data's floor: see :mod:`dgsdp.motion.floor`), not the lowest joint of
   each frame: the motion is shifted down by ``floor_height`` (the same for every frame, so the run's floor

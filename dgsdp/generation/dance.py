@@ -19,12 +19,13 @@ from dgsdp.utils.io import atomic_path
 
 @dataclass
 class Dance:
-    """The dances made to one song: ``motion`` (num_samples, T, D), unnormalised, z-up, at ``fps``, on the run's
-    floor at ``floor_height`` (z-up metres), pose vectors of the run's ``skeleton`` (D = its pose size, SMPL-24:
-    151). ``joints`` and :meth:`smpl` give them as joint positions and SMPL(-X) parameters; :meth:`save` writes the files generate.py writes. ``raw``: the model's own output before the
-    finishing (beat sync and floor cleanup; the same as ``motion`` without them), and ``finishing``: one dict per
-    sample of what each finishing step changed (:meth:`DanceGenerator.finish`). ``tempo``: the song's tempo and how its
-    beats were given to the model (:class:`~dgsdp.audio.tempo.TempoFold`, ``sampling.tempo_fold``)."""
+    """The dances made to one song: ``motion`` (num_samples, T, D), unnormalised, z-up, at ``fps``, on the run's floor
+    at ``floor_height`` (z-up metres), pose vectors of the run's ``skeleton`` (D = its pose size, SMPL-24: 151).
+    ``joints`` and :meth:`smpl` give them as joint positions and SMPL(-X) parameters; :meth:`save` writes the files
+    generate.py writes. ``raw``: the model's own output before the finishing (beat sync and floor cleanup; the same as
+    ``motion`` without them), and ``finishing``: one dict per sample of what each finishing step changed
+    (:meth:`DanceGenerator.finish`). ``tempo``: the song's tempo and how its beats were given to the model
+    (:class:`~dgsdp.audio.tempo.TempoFold`, ``sampling.tempo_fold``)."""
 
     motion: torch.Tensor
     fps: int

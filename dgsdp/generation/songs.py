@@ -108,7 +108,7 @@ class SongDancer:
         return self.settings.sampling
 
     def dance(self, song: Path, plan: StylePlan) -> Dance:
-        """The dances (motions (num_samples, T, 151), and the model's raw output) for one song in a resolved style."""
+        """The dances (motions (num_samples, T, D), and the model's raw output) for one song in a resolved style."""
         s = self.settings
         return self.generator.dance_to_song(
             song, plan, edit=s.edit, seconds=s.seconds, blend_seconds=s.blend_seconds, num_samples=s.num_samples,

@@ -1,7 +1,7 @@
 """The denoiser: EDGE's DanceDecoder extended with style (DGSDP's MCSAD).
 
-Given a noisy motion x_t (B, T, 151), the diffusion step t, music features (B, T, Da) and a style vector, it
-predicts the clean motion x0 (B, T, 151).
+Given a noisy motion x_t (B, T, pose_dim) (SMPL-24: 151), the diffusion step t, music features (B, T, Da) and a style
+vector, it predicts the clean motion x0 (B, T, pose_dim).
 
 - Time: sinusoidal -> Linear(d, 4d) -> Mish; Linear(4d, d) gives the FiLM vector, Linear(4d, 2d) two time tokens.
 - Music: Linear(Da, d) (plus Linear(ds, d) of the style in ``concat`` injection: a linear layer over the
@@ -403,10 +403,10 @@ class DanceDenoiser(nn.Module):
         cond: DenoiserCondition | None = None,
         guidance: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """x_t (B, T, 151), t (B,), music (B, T, Da), style (B, ds) or (B, T, ds); keep_* (B,) bool
+        """x_t (B, T, pose_dim), t (B,), music (B, T, Da), style (B, ds) or (B, T, ds); keep_* (B,) bool
         (False = condition dropped); or, instead of music, style and keep_*, ``cond`` from :meth:`condition`
         (sampling). ``guidance`` (B, guidance_inputs): the guidance weights of a guidance-distilled student
-        (music, then style). Returns x0 prediction (B, T, 151)."""
+        (music, then style). Returns x0 prediction (B, T, pose_dim)."""
         b, n, _ = x_t.shape
         if n > self.seq_len:
             raise ValueError(f"sequence of {n} frames is longer than the model's {self.seq_len}; use long-form")

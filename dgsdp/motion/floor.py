@@ -1,10 +1,10 @@
 """Feet on the floor: the floor height of a dataset, and a contact-aware cleanup of generated motion.
 
 Floor height. Motion is z-up metres; the floor is the height of the lowest foot joint (the skeleton's foot joints,
-SMPL's 7, 8, 10, 11: ankles and toes) when a foot stands on the ground. :func:`measure_floor_height` takes the median over all frames of
-the lowest foot joint's height: dancers have a foot on the floor in most frames, so jumps and lifts do not move it.
-The synthetic dataset gives 0.0 (its lowest foot joint touches z = 0 on every frame); real AIST++ has its floor
-elsewhere. Joints lie inside the body, so the floor by this measure is a few centimetres above the sole.
+SMPL's 7, 8, 10, 11: ankles and toes) when a foot stands on the ground. :func:`measure_floor_height` takes the median
+over all frames of the lowest foot joint's height: dancers have a foot on the floor in most frames, so jumps and lifts
+do not move it. The synthetic dataset gives 0.0 (its lowest foot joint touches z = 0 on every frame); real AIST++ has
+its floor elsewhere. Joints lie inside the body, so the floor by this measure is a few centimetres above the sole.
 
 Cleanup (:func:`clean_motion`), from the model's own predicted foot contacts (channels 0-3, > 0.5 = contact):
 
@@ -529,11 +529,11 @@ def clean_motion(
     stats: list[dict[str, int]] | None = None,
     skeleton: Skeleton = SMPL24,
 ) -> torch.Tensor:
-    """Feet on the floor (see the module docstring): unnormalised motion (T, D) or (S, T, D) on ``skeleton`` (D its
-    pose size), z-up, at ``fps``, with its floor at ``floor_height`` metres -> the cleaned motion, same shape and
-    dtype. ``mask`` (T, D) or (S, T, D), 1 = given: those channels come back exactly as they went in. ``stats``: a list that gets one dict
-    per motion, the frames each step touched (``tilt_limited_frames``, ``turn_limited_frames`` (with the limits
-    on), ``foot_locked_frames`` (with foot locking) and ``grounded_air_frames``: frames of runs without contact
+    """Feet on the floor (see the module docstring): unnormalised motion (T, D) or (S, T, D) on ``skeleton`` (D its pose
+    size), z-up, at ``fps``, with its floor at ``floor_height`` metres -> the cleaned motion, same shape and dtype.
+    ``mask`` (T, D) or (S, T, D), 1 = given: those channels come back exactly as they went in. ``stats``: a list that
+    gets one dict per motion, the frames each step touched (``tilt_limited_frames``, ``turn_limited_frames`` (with the
+    limits on), ``foot_locked_frames`` (with foot locking) and ``grounded_air_frames``: frames of runs without contact
     longer than ``max_air_seconds``, brought down)."""
     check_pose_dim(motion, skeleton, "clean_motion's motion")
     if motion.ndim not in (2, 3):

@@ -95,8 +95,8 @@ def foot_contacts(
 ) -> torch.Tensor:
     """Binary foot contacts (..., T, 4) from joints (..., T, J, 3) at 30 FPS.
 
-    Speed of the skeleton's foot joints (SMPL: 7, 8, 10, 11) is the norm of the displacement to the next frame (metres per frame); the last
-    frame gets speed 0. Contact where speed < threshold (0.01 m/frame, about 0.3 m/s at 30 FPS).
+    Speed of the skeleton's foot joints (SMPL: 7, 8, 10, 11) is the norm of the displacement to the next frame (metres
+    per frame); the last frame gets speed 0. Contact where speed < threshold (0.01 m/frame, about 0.3 m/s at 30 FPS).
     """
     feet = joints[..., list(skeleton.foot_joints), :]
     speed = torch.zeros(feet.shape[:-1], dtype=joints.dtype, device=joints.device)
@@ -109,9 +109,9 @@ def smpl_to_pose(
 ) -> torch.Tensor:
     """SMPL(-X) parameters -> pose vectors (..., T, 7 + 6 J), z-up.
 
-    poses_axis_angle: (..., T, 3 J) axis-angle in the skeleton's joint order (SMPL: 72); trans_m: (..., T, 3) root translation in
-    metres (AIST++: smpl_trans / smpl_scaling). ``y_up`` says the input is y-up (AIST++) and is converted.
-    Contacts are computed from FK at the input's frame rate (use 30 FPS input).
+    poses_axis_angle: (..., T, 3 J) axis-angle in the skeleton's joint order (SMPL: 72); trans_m: (..., T, 3) root
+    translation in metres (AIST++: smpl_trans / smpl_scaling). ``y_up`` says the input is y-up (AIST++) and is
+    converted. Contacts are computed from FK at the input's frame rate (use 30 FPS input).
     """
     n = skeleton.num_joints
     if poses_axis_angle.shape[-1] != 3 * n:

@@ -209,7 +209,7 @@ class Sampler:
         guidance: Guidance,
         prepared: PreparedCondition | None = None,
     ) -> torch.Tensor:
-        """The guided, clamped x0 prediction (B, T, 151). ``prepared`` (for ``cond``) reuses the conditioning
+        """The guided, clamped x0 prediction (B, T, D). ``prepared`` (for ``cond``) reuses the conditioning
         of earlier steps."""
         passes = self._passes(cond, guidance)
         k = len(passes)
@@ -252,7 +252,7 @@ class Sampler:
         progress: bool = False,
         spacing: str = "lambda",
     ) -> torch.Tensor:
-        """Sample x0 of ``shape`` (B, T, 151), normalised.
+        """Sample x0 of ``shape`` (B, T, D), normalised.
 
         method: ``ddim`` (``steps``, ``eta``), ``ddpm`` (every diffusion step), or a few-step solver
         (``dpmpp_2m``, ``unipc``: deterministic ODE solvers; ``dpmpp_2m_sde``: stochastic; ``eta`` is not used) evaluated at ``steps`` diffusion steps placed by
@@ -261,7 +261,7 @@ class Sampler:
         generator: one generator for the batch, one per group of rows (see :class:`Noise`), or a Noise; every
         Gaussian draw of the sampler comes from it.
 
-        mask (B or 1, T, 151) with 1 where ``known`` (normalised, same shape as the output) is given. DDPM/DDIM:
+        mask (B or 1, T, D) with 1 where ``known`` (normalised, same shape as the output) is given. DDPM/DDIM:
         after every step the known region is replaced by ``known`` noised to the new step with fresh noise.
         ODE solvers: the known region of every x0 prediction is replaced by ``known`` before the update, and that
         of the state by ``known`` on its own ODE path, alpha_t known + sigma_t z with the initial noise z (the

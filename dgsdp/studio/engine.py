@@ -52,7 +52,7 @@ def output_formats(video: bool = True) -> list[str]:
 
 @dataclass
 class Edit:
-    """An edit of an existing dance (``motion`` (T, 151), unnormalised): one of :data:`EDITS`."""
+    """An edit of an existing dance (``motion`` (T, D), unnormalised): one of :data:`EDITS`."""
 
     kind: str
     motion: torch.Tensor

@@ -3,11 +3,11 @@
 A :class:`RunSpec` is made from a composed run config (:meth:`RunSpec.from_config`, at the start of training) or
 from the record stored in a checkpoint (:meth:`RunSpec.from_checkpoint`, when generating, evaluating or resuming).
 It holds the buildable parts as ``_target_`` configs (denoiser, diffusion, loss, optimiser, audio encoder, style
-embedder), the motion's skeleton (:class:`~dgsdp.motion.Skeleton`, stored as plain data: names, parents, offsets;
-a checkpoint without one is SMPL-24's, as every run before skeletons were data), the sizes the weights depend on
-(audio and style dims, style bank size, genres), condition dropout for guidance, the EMA decay, the frame rate and
-window, the seed, and a plain copy of the whole run config for the record. The defaults of all of these live in the config files (``dgsdp/conf``); the spec has none of its own, so an
-old checkpoint that lacks a field fails with a message naming it.
+embedder), the motion's skeleton (:class:`~dgsdp.motion.Skeleton`, stored as plain data: names, parents, offsets; a
+checkpoint without one is SMPL-24's, as every run before skeletons were data), the sizes the weights depend on (audio
+and style dims, style bank size, genres), condition dropout for guidance, the EMA decay, the frame rate and window, the
+seed, and a plain copy of the whole run config for the record. The defaults of all of these live in the config files
+(``dgsdp/conf``); the spec has none of its own, so an old checkpoint that lacks a field fails with a message naming it.
 
 Everything read from a checkpoint is data: parts are built through :func:`dgsdp.registry.build` with
 ``source="checkpoint"`` (the project's registered classes only), and the write locations of the stored configs

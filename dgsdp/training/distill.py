@@ -121,7 +121,7 @@ class GuidanceDistillation(DanceDiffusion):
         self, x_t: torch.Tensor, t: torch.Tensor, music: torch.Tensor | None, style: torch.Tensor | None,
         weights: torch.Tensor,
     ) -> torch.Tensor:  # fmt: skip
-        """The teacher's guided x0 (B, T, 151) with per-row weights (B, guidance_inputs), as the sampler forms it
+        """The teacher's guided x0 (B, T, D) with per-row weights (B, guidance_inputs), as the sampler forms it
         (without the x0 bound, which the sampler applies to the student's prediction)."""
         passes = guidance_passes(self.style_guidance and style is not None)
         k = len(passes)

@@ -23,7 +23,8 @@ def step_seed(seed: int, step: int, rank: int = 0, world_size: int = 1) -> int:
 
 
 class DanceDiffusion(TrainedModel, L.LightningModule):
-    """Trains the denoiser on normalised windows of pose vectors; samples with the EMA weights (see :class:`TrainedModel`)."""
+    """Trains the denoiser on normalised windows of pose vectors; samples with the EMA weights (see
+    :class:`TrainedModel`)."""
 
     def __init__(self, spec: RunSpec | Mapping[str, Any], source: Source = "config") -> None:
         super().__init__(spec, source)

@@ -83,7 +83,7 @@ def run_benchmark(
     from dgsdp.generation import find_songs, write_motion
     from dgsdp.generation.beatsync import song_beats
     from dgsdp.generation.songs import SongDancer
-    from dgsdp.motion import pose_to_joints
+    from dgsdp.motion import pose_to_joints, smpl24_layout
 
     out = sys.stdout if out is None else out
     if not folder.is_dir():
@@ -168,6 +168,7 @@ def run_benchmark(
             result.feature_seconds = time.perf_counter() - start
             start = time.perf_counter()
             dance = job.dance(song, plans[song_style])
+            skel = dance.skeleton
             result.dance_seconds = time.perf_counter() - start
             result.tempo = dance.tempo
             if motions_dir is not None:
@@ -175,10 +176,14 @@ def run_benchmark(
                 name = (
                     song.stem if not all_styles and (song, song_style) == first[song] else f"{song.stem}__{song_style}"
                 )
-                write_motion(dance.motion[0], motions_dir / name, fps=generator.fps, formats=["npy"])
-                write_motion(dance.raw[0], motions_dir / "raw" / name, fps=generator.fps, formats=["npy"])
-            joints = pose_to_joints(dance.motion[0].double()).numpy()
-            raw_joints = pose_to_joints(dance.raw[0].double()).numpy()
+                write_motion(dance.motion[0], motions_dir / name, fps=generator.fps, formats=["npy"], skeleton=skel)
+                write_motion(
+                    dance.raw[0], motions_dir / "raw" / name, fps=generator.fps, formats=["npy"], skeleton=skel
+                )
+            # the measures read SMPL's 24 joints: another skeleton's joints in SMPL's layout
+            layout = smpl24_layout(skel)
+            joints = pose_to_joints(dance.motion[0].double(), skel).numpy()[:, layout]
+            raw_joints = pose_to_joints(dance.raw[0].double(), skel).numpy()[:, layout]
             boundaries = window_boundaries(len(joints), window, stride)
             result.figures = dance_figures(joints, music_beats=beats, boundaries=boundaries, floor_m=floor)
             result.raw = dance_figures(raw_joints, music_beats=beats, boundaries=boundaries, floor_m=floor)
