@@ -39,6 +39,7 @@ from tqdm.auto import tqdm
 
 from dgsdp.benchmarks.realsongs.measures import mean_joint_speed
 from dgsdp.errors import ConfigError, DgsdpError
+from dgsdp.motion import SMPL24, Skeleton
 from dgsdp.resources import RESOURCES_DIR
 
 HELDOUT_FILE = RESOURCES_DIR / "style_heldout" / "aistpp.yaml"
@@ -142,10 +143,11 @@ class Judge:
         return [joints[s : s + n] for s in starts]
 
 
-def _to_joints(motions: Sequence[torch.Tensor]) -> list[np.ndarray]:
+def _to_joints(motions: Sequence[torch.Tensor], skeleton: Skeleton = SMPL24) -> list[np.ndarray]:
+    """Joints in SMPL's layout (the metrics' input) of motions of ``skeleton`` (the dataset's clips: SMPL-24)."""
     from dgsdp.evaluation.features import motion_to_joints
 
-    return [motion_to_joints(m[0].numpy() if m.ndim == 3 else m.numpy()) for m in motions]
+    return [motion_to_joints(m[0].numpy() if m.ndim == 3 else m.numpy(), skeleton) for m in motions]
 
 
 class StyleBenchmark:
@@ -202,8 +204,12 @@ class StyleBenchmark:
     def _sample(self, requests: list[Any], beats: list[np.ndarray | None]) -> dict[str, list[np.ndarray]]:
         raw = self.generator.generate_many(requests, self.job.sampling, progress=False)
         if self.raw_only:
-            return {"raw": _to_joints(raw)}
-        return {"raw": _to_joints(raw), "finished": _to_joints(self._finish(raw, beats))}
+            return {"raw": _to_joints(raw, self.generator.skeleton)}
+        finished = self._finish(raw, beats)
+        return {
+            "raw": _to_joints(raw, self.generator.skeleton),
+            "finished": _to_joints(finished, self.generator.skeleton),
+        }
 
     def run(self, songs: Sequence[Path] = (), song_seconds: float = 10.0) -> dict[str, Any]:
         from dgsdp.evaluation.clips import ClipSource
@@ -350,7 +356,7 @@ class StyleBenchmark:
             )  # fmt: skip
             row: dict[str, Any] = {"song": song.name, "first": a, "second": b}
             for name, motion in (("raw", dance.raw), ("finished", dance.motion)):
-                joints = _to_joints([motion])[0]
+                joints = _to_joints([motion], self.generator.skeleton)[0]
                 first_windows = judge.windows(joints, 0.0, span - blend / 2)
                 second_windows = judge.windows(joints, span + blend / 2, 2 * span)
                 grid = BLEND_GRID_FRAMES
@@ -395,7 +401,7 @@ class StyleBenchmark:
                     bar.update()
                     continue
                 for name, motion in (("raw", dance.raw), ("finished", dance.motion)):
-                    joints = _to_joints([motion])[0]
+                    joints = _to_joints([motion], self.generator.skeleton)[0]
                     windows = judge.windows(joints, 0.0, len(joints) / self.fps) or [joints]
                     predicted = judge.predict(windows)
                     per_genre[name].setdefault(code, []).extend(int(p == g) for p in predicted)
