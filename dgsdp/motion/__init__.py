@@ -1,4 +1,4 @@
-"""Motion core: skeletons, rotations, forward kinematics, axes, the 151-d pose vector, normalisation.
+"""Motion core: skeletons, rotations, forward kinematics, axes, the pose vector, normalisation.
 
 Imports nothing else from dgsdp but its error classes (a bad SMPL-X file or stored skeleton is a user error);
 every other sub-package builds on it.
