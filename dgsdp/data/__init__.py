@@ -1,4 +1,4 @@
-"""Datasets: the AIST++ reader, the synthetic AIST++ generator, and the training/evaluation windows."""
+"""Datasets: the AIST++ and FineDance readers, the synthetic generators, and the training/evaluation windows."""
 
 from dgsdp.data.aistpp import (
     SequenceName,

@@ -62,15 +62,18 @@ def music_tempo_bpm(music_id: str) -> float:
     return bpm
 
 
-def _find_list(root: Path, filename: str) -> Path | None:
-    for folder in (root / "splits", root, SHIPPED_SPLITS_DIR):
+def find_list(root: Path, filename: str, shipped_dir: Path = SHIPPED_SPLITS_DIR) -> Path | None:
+    """A split or ignore list: ``<root>/splits/<filename>``, else ``<root>/<filename>``, else the shipped one."""
+    for folder in (root / "splits", root, shipped_dir):
         if (folder / filename).is_file():
             return folder / filename
     return None
 
 
-def _read_list(path: Path) -> list[str]:
-    return [line.strip() for line in path.read_text().splitlines() if line.strip()]
+def read_list(path: Path) -> list[str]:
+    """The names in a list file, one a line; blank lines and ``#`` comment lines are skipped."""
+    lines = (line.strip() for line in path.read_text().splitlines())
+    return [line for line in lines if line and not line.startswith("#")]
 
 
 def check_root(root: str | Path) -> Path:
@@ -89,15 +92,15 @@ def read_split(root: str | Path, split: str) -> list[str]:
     root = check_root(root)
     if split not in SPLIT_FILES:
         raise DataError(f"unknown split {split!r}; known splits: {', '.join(SPLIT_FILES)}")
-    path = _find_list(root, SPLIT_FILES[split])
+    path = find_list(root, SPLIT_FILES[split])
     if path is None:
         raise DataError(
             f"no split list {SPLIT_FILES[split]!r} for {root}: put it in {root / 'splits'} "
             f"(the official lists ship in {SHIPPED_SPLITS_DIR})"
         )
-    ignore_path = _find_list(root, "ignore_list.txt")
-    ignored = set(_read_list(ignore_path)) if ignore_path else set()
-    names = [n for n in _read_list(path) if n not in ignored]
+    ignore_path = find_list(root, "ignore_list.txt")
+    ignored = set(read_list(ignore_path)) if ignore_path else set()
+    names = [n for n in read_list(path) if n not in ignored]
     present = [n for n in names if (root / "motions" / f"{n}.pkl").is_file()]
     if not present:
         raise DataError(

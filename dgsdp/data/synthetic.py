@@ -82,7 +82,7 @@ class SequencePlan:
     ignored: bool = False  # a deliberately bad take listed in ignore_list.txt, as AIST++ has
 
 
-def _rng(seed: int, key: str) -> np.random.Generator:
+def item_rng(seed: int, key: str) -> np.random.Generator:
     """A generator for one named item: stable across runs and Python processes (no salted ``hash``)."""
     return np.random.default_rng([seed, zlib.crc32(key.encode("utf-8"))])
 
@@ -147,13 +147,14 @@ def _settings(genres: tuple[str, ...] | list[str] | None = None, **settings: Any
     return replace(chosen, seconds=float(chosen.seconds), offbeats=bool(chosen.offbeats))
 
 
-def _check_folder(out_dir: Path) -> None:
-    """Refuse to write into a folder holding data that this generator did not make (e.g. the real AIST++)."""
-    if not out_dir.exists() or (out_dir / MANIFEST).exists() or (out_dir / PARTIAL_MARKER).exists():
+def check_output_folder(out_dir: Path, manifest: str = MANIFEST) -> None:
+    """Refuse to write into a folder holding data that a synthetic generator did not make (e.g. the real AIST++):
+    only a new or empty folder, or one with the generator's ``manifest`` or an unfinished run's marker."""
+    if not out_dir.exists() or (out_dir / manifest).exists() or (out_dir / PARTIAL_MARKER).exists():
         return
     if any(out_dir.iterdir()):
         raise DataError(
-            f"{out_dir} is not empty and holds no synthetic dataset ({MANIFEST} missing); refusing to write "
+            f"{out_dir} is not empty and holds no synthetic dataset ({manifest} missing); refusing to write "
             "into it. Choose an empty or new folder for the synthetic dataset."
         )
 
@@ -197,7 +198,7 @@ def generate_synthetic_aistpp(
     out_dir = Path(out_dir)
     if not overwrite and _manifest_matches(out_dir, settings):
         return out_dir
-    _check_folder(out_dir)
+    check_output_folder(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out_dir / PARTIAL_MARKER, json.dumps(asdict(settings)))
     (out_dir / MANIFEST).unlink(missing_ok=True)
@@ -210,7 +211,7 @@ def generate_synthetic_aistpp(
     beats: dict[str, np.ndarray] = {}
     for music_id in sorted({p.music_id for p in plans}):
         bpm = music_tempo_bpm(music_id)
-        rng = _rng(settings.seed, music_id)
+        rng = item_rng(settings.seed, music_id)
         first_beat_s = float(rng.uniform(0.1, 0.1 + 60.0 / bpm))
         audio, beat_times = synthesize_music(
             music_id[1:3], bpm, settings.seconds, first_beat_s=first_beat_s,
@@ -223,13 +224,13 @@ def generate_synthetic_aistpp(
     # Motions: each dancer has a fixed body scale, as the AIST++ fits do.
     sequences: dict[str, dict] = {}
     for plan in plans:
-        rng = _rng(settings.seed, plan.name)
+        rng = item_rng(settings.seed, plan.name)
         poses, trans_m = synthesize_dance(plan.genre, beats[plan.music_id], num_frames, rng=rng, basic=plan.basic)
         loss = float(rng.uniform(0.5, 2.0))
         if plan.ignored:  # a failed fit: jittering joints, a large fitting loss
             poses = poses + rng.normal(0.0, 0.15, poses.shape)
             loss *= 50.0
-        scaling = float(_rng(settings.seed, f"dancer{plan.dancer}").uniform(85.0, 105.0))
+        scaling = float(item_rng(settings.seed, f"dancer{plan.dancer}").uniform(85.0, 105.0))
         record = {
             "smpl_poses": poses.astype(np.float32),
             "smpl_trans": (trans_m * scaling).astype(np.float32),

@@ -455,7 +455,7 @@ def _max_leg_reach_m(offsets: np.ndarray, side: int) -> float:
 
 
 def synthesize_dance(
-    genre: str,
+    genre: str | DanceStyle,
     beat_times_s: np.ndarray,
     num_frames: int,
     *,
@@ -466,10 +466,11 @@ def synthesize_dance(
 ) -> tuple[np.ndarray, np.ndarray]:
     """A dance in ``genre``'s style on the given music beats.
 
-    beat_times_s: (B,) beat times of the music. Returns SMPL ``poses`` (T, 72) axis-angle (SMPL joint order) and
-    root translation ``trans_m`` (T, 3) in metres, y-up, with the lowest foot joint on the floor (y = 0).
+    genre: an AIST++ genre code of :data:`DANCE_STYLES`, or a style of one's own. beat_times_s: (B,) beat times
+    of the music. Returns SMPL ``poses`` (T, 72) axis-angle (SMPL joint order) and root translation ``trans_m``
+    (T, 3) in metres, y-up, with the lowest foot joint on the floor (y = 0).
     """
-    style = DANCE_STYLES[genre]
+    style = genre if isinstance(genre, DanceStyle) else DANCE_STYLES[genre]
     period_s = float(np.median(np.diff(beat_times_s))) if len(beat_times_s) > 1 else 0.5
     duration_s = num_frames / fps
     # Keyframes on every beat, extended by whole beats to cover the whole clip; a little human timing jitter.

@@ -5,8 +5,9 @@ installed wheel alike):
 
 - ``dgsdp/conf/``: the Hydra configs (search path ``pkg://dgsdp.conf``);
 - ``dgsdp/sweeps/``: one multirun file per paper table;
-- ``dgsdp/resources/``: the official AIST++ split lists (``aistpp_splits/``), the style description prompts
-  (``style_prompts/aistpp.yaml``) and the papers' published numbers (``paper_tables.yaml``).
+- ``dgsdp/resources/``: the official AIST++ split lists (``aistpp_splits/``), FineDance's official split lists and
+  genres (``finedance/``), the style description prompts (``style_prompts/``), the held-out style descriptions
+  (``style_heldout/``) and the papers' published numbers (``paper_tables.yaml``).
 
 Datasets, caches and run outputs never go inside the package: they go under the working folder,
 :func:`home` (``$DGSDP_HOME`` when set, else the current folder), as ``data/``, ``data/cache/`` and ``outputs/``.
@@ -40,6 +41,9 @@ SWEEPS_DIR = shipped("sweeps")
 RESOURCES_DIR = shipped("resources")
 AISTPP_SPLITS_DIR = RESOURCES_DIR / "aistpp_splits"
 STYLE_PROMPTS_FILE = RESOURCES_DIR / "style_prompts" / "aistpp.yaml"
+FINEDANCE_DIR = RESOURCES_DIR / "finedance"  # split lists, ignore lists, genres.yaml, genre_aliases.yaml
+FINEDANCE_PROMPTS_FILE = RESOURCES_DIR / "style_prompts" / "finedance.yaml"
+FINEDANCE_HELDOUT_FILE = RESOURCES_DIR / "style_heldout" / "finedance.yaml"
 PAPER_TABLES_FILE = RESOURCES_DIR / "paper_tables.yaml"
 
 

@@ -103,10 +103,10 @@ def test_official_lists_are_shipped_and_used(tmp_path):
     name = "gWA_sFM_cAll_d25_mWA4_ch05"  # first line of the official train list
     write_real_format_pkl(root / "motions" / f"{name}.pkl")
     assert read_split(root, "train") == [name]
-    from dgsdp.data.aistpp import SHIPPED_SPLITS_DIR, _read_list
+    from dgsdp.data.aistpp import SHIPPED_SPLITS_DIR, read_list
 
-    train = set(_read_list(SHIPPED_SPLITS_DIR / "crossmodal_train.txt"))
-    ignore = set(_read_list(SHIPPED_SPLITS_DIR / "ignore_list.txt"))
+    train = set(read_list(SHIPPED_SPLITS_DIR / "crossmodal_train.txt"))
+    ignore = set(read_list(SHIPPED_SPLITS_DIR / "ignore_list.txt"))
     assert len(train) == 980 and len(train - ignore) == 952
 
 
