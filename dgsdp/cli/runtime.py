@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from hydra.core.hydra_config import HydraConfig
+from hydra.errors import InstantiationException
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
@@ -144,7 +145,12 @@ def remove_unused_run_folder(folder: str | Path) -> None:
 def run_main(task: Any, cfg: DictConfig) -> Any:
     """Run an entry point's task with one clear message (and no traceback) for errors a user can meet."""
     try:
-        return task(cfg)
+        try:
+            return task(cfg)
+        except InstantiationException as e:  # a constructor's own error (e.g. the datamodule's settings)
+            if isinstance(e.__cause__, DgsdpError):
+                raise e.__cause__ from None
+            raise
     except DgsdpError as e:
         log.error("%s", e)
         if isinstance(e, ConfigError | CheckpointError) and HydraConfig.initialized():

@@ -9,9 +9,10 @@ does no processing and a changed setting never reuses stale data.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -57,6 +58,76 @@ class Sequence:
     audio: np.ndarray | None  # (T_audio, D) features at 30 FPS, or (samples,) waveform, or None
 
 
+@dataclass(frozen=True)
+class SourceItem:
+    """One dance to read: its motion file, how that file becomes pose vectors, and its music (a function, so
+    that a missing song is reported as this item's error like a bad motion file)."""
+
+    name: str
+    genre: str
+    genre_index: int
+    music_id: str
+    motion_file: Path
+    read_motion: Callable[[Path], np.ndarray]
+    music_file: Callable[[], Path]
+
+
+def read_sequences(
+    items: list[SourceItem],
+    *,
+    split: str,
+    root: Path,
+    cache_dir: str | Path,
+    motion_namespace: str,
+    audio_encoder: AudioEncoder | None = None,
+    waveform_sample_rate: int | None = None,
+    progress: bool = True,
+    errors: list[tuple[str, str]] | None = None,
+) -> list[Sequence]:
+    """Process (cached per motion file content under ``cache_dir/motion_namespace``; the namespace names every
+    setting the processing depends on) and pair each item with its music: the
+    encoder's features (cached per song) or the waveform. The loop behind every dataset layout.
+
+    A sequence whose motion or music file cannot be read does not stop the others: with ``errors`` given, each
+    such file's ``(name, message)`` is appended to it and the sequence is left out; without it, one DataError
+    listing every bad file is raised after all files were tried."""
+    motion_cache = DiskCache(cache_dir, motion_namespace)
+    feature_cache = FeatureCache(cache_dir) if audio_encoder is not None else None
+    sequences: list[Sequence] = []
+    failed: list[tuple[str, str]] = []
+    kinds: set[type[DgsdpError]] = set()
+    for item in tqdm(items, desc=f"loading {split} ({root.name})", disable=not progress, leave=False):
+
+        def compute(item: SourceItem = item) -> dict[str, np.ndarray]:
+            return {"motion": item.read_motion(item.motion_file)}
+
+        try:
+            motion = motion_cache.get_or_compute(file_hash(item.motion_file), compute, required=("motion",))
+            audio: np.ndarray | None = None
+            if audio_encoder is not None:
+                audio = feature_cache.features_for_file(audio_encoder, item.music_file(), music_id=item.music_id)
+            elif waveform_sample_rate is not None:
+                audio, _ = load_audio(item.music_file(), waveform_sample_rate)
+        except DgsdpError as e:  # DataError, AudioError: this file is bad, the others may be fine
+            failed.append((item.name, str(e).rstrip(".")))
+            kinds.add(type(e))
+            continue
+        sequences.append(Sequence(item.name, item.genre, item.genre_index, item.music_id, motion["motion"], audio))
+    if failed:
+        for name, message in failed:
+            log.error("split %r: %s left out: %s", split, name, message)
+        if errors is not None:
+            errors.extend(failed)
+        else:
+            listing = "; ".join(f"{name}: {message}" for name, message in failed)
+            error = kinds.pop() if len(kinds) == 1 else DataError  # e.g. AudioError when only songs are bad
+            raise error(
+                f"{len(failed)} of {len(items)} sequences of split {split!r} in {root} cannot be read: {listing}. "
+                "Fix or remove these files (or add their names to the ignore list)"
+            )
+    return sequences
+
+
 def load_sequences(
     root: str | Path,
     split: str,
@@ -70,53 +141,32 @@ def load_sequences(
     progress: bool = True,
     errors: list[tuple[str, str]] | None = None,
 ) -> list[Sequence]:
-    """Read, process (cached) and pair each sequence of a split with its music.
-
-    A sequence whose motion or music file cannot be read does not stop the others: with ``errors`` given, each
-    such file's ``(name, message)`` is appended to it and the sequence is left out; without it, one DataError
-    listing every bad file is raised after all files were tried."""
+    """Read, process (cached) and pair each sequence of an AIST++-layout split with its music
+    (:func:`read_sequences`; ``errors`` as there)."""
     root = check_root(root)
-    names = read_split(root, split)[:max_sequences]
-    motion_cache = DiskCache(cache_dir, f"motion-v{MOTION_CACHE_VERSION}-{fps}fps")
-    feature_cache = FeatureCache(cache_dir) if audio_encoder is not None else None
-    sequences: list[Sequence] = []
-    failed: list[tuple[str, str]] = []
-    kinds: set[type[DgsdpError]] = set()
-    for name in tqdm(names, desc=f"loading {split} ({root.name})", disable=not progress, leave=False):
+    items = []
+    for name in read_split(root, split)[:max_sequences]:
         parsed = parse_name(name)
-        pkl = root / "motions" / f"{name}.pkl"
 
-        def compute(pkl: Path = pkl) -> dict[str, np.ndarray]:
+        def read_motion(pkl: Path) -> np.ndarray:
             poses, trans_m = load_motion_pkl(pkl)
-            return {"motion": process_motion(poses, trans_m, fps=fps)}
+            return process_motion(poses, trans_m, fps=fps)
 
-        try:
-            motion = motion_cache.get_or_compute(file_hash(pkl), compute, required=("motion",))["motion"]
-            audio: np.ndarray | None = None
-            if audio_encoder is not None:
-                audio = feature_cache.features_for_file(
-                    audio_encoder, music_path(root, parsed.music_id), music_id=parsed.music_id
-                )
-            elif waveform_sample_rate is not None:
-                audio, _ = load_audio(music_path(root, parsed.music_id), waveform_sample_rate)
-        except DgsdpError as e:  # DataError, AudioError: this file is bad, the others may be fine
-            failed.append((name, str(e).rstrip(".")))
-            kinds.add(type(e))
-            continue
-        sequences.append(Sequence(name, parsed.genre, vocab.index(parsed.genre), parsed.music_id, motion, audio))
-    if failed:
-        for name, message in failed:
-            log.error("split %r: %s left out: %s", split, name, message)
-        if errors is not None:
-            errors.extend(failed)
-        else:
-            listing = "; ".join(f"{name}: {message}" for name, message in failed)
-            error = kinds.pop() if len(kinds) == 1 else DataError  # e.g. AudioError when only songs are bad
-            raise error(
-                f"{len(failed)} of {len(names)} sequences of split {split!r} in {root} cannot be read: {listing}. "
-                "Fix or remove these files (or add their names to the ignore list)"
-            )
-    return sequences
+        items.append(
+            SourceItem(
+                name,
+                parsed.genre,
+                vocab.index(parsed.genre),
+                parsed.music_id,
+                root / "motions" / f"{name}.pkl",
+                read_motion,
+                functools.partial(music_path, root, parsed.music_id),
+            )  # fmt: skip
+        )
+    return read_sequences(
+        items, split=split, root=root, cache_dir=cache_dir, motion_namespace=f"motion-v{MOTION_CACHE_VERSION}-{fps}fps",
+        audio_encoder=audio_encoder, waveform_sample_rate=waveform_sample_rate, progress=progress, errors=errors,
+    )  # fmt: skip
 
 
 def count_short(sequences: list[Sequence], length: int) -> int:
@@ -380,7 +430,7 @@ class DanceDataModule(L.LightningDataModule):
         persistent_workers: bool = True,
         max_sequences: int | None = None,
         synthetic: dict[str, Any] | None = None,
-        vocab: GenreVocab = AISTPP_GENRES,
+        vocab: GenreVocab | str = AISTPP_GENRES,
         progress: bool = True,
         shuffle_seed: int = 0,
         synthetic_root: str | None = None,
@@ -415,7 +465,7 @@ class DanceDataModule(L.LightningDataModule):
         self.persistent_workers = persistent_workers
         self.max_sequences = max_sequences
         self.synthetic = dict(synthetic) if synthetic else None
-        self.vocab = vocab
+        self.vocab = GenreVocab.named(vocab) if isinstance(vocab, str) else vocab  # a GenreVocab or a dataset's name
         self.progress = progress
         self.normalizer = MinMaxNormalizer(self.skeleton.pose_dim)
         self.floor_height: float | None = None  # z-up metres, measured on the training motions in setup()
@@ -464,18 +514,22 @@ class DanceDataModule(L.LightningDataModule):
     def sequences(self, stage: str) -> list[Sequence]:
         split = self.splits[stage]
         if split not in self._sequences:
-            self._sequences[split] = load_sequences(
-                self.root,
-                split,
-                fps=self.fps,
-                cache_dir=self.cache_dir,
-                audio_encoder=self.audio_encoder,
-                waveform_sample_rate=self.waveform_sample_rate,
-                vocab=self.vocab,
-                max_sequences=self.max_sequences,
-                progress=self.progress,
-            )
+            self._sequences[split] = self.load_split(split)
         return self._sequences[split]
+
+    def load_split(self, split: str) -> list[Sequence]:
+        """The processed sequences of one split of this dataset (subclasses read other layouts)."""
+        return load_sequences(
+            self.root,
+            split,
+            fps=self.fps,
+            cache_dir=self.cache_dir,
+            audio_encoder=self.audio_encoder,
+            waveform_sample_rate=self.waveform_sample_rate,
+            vocab=self.vocab,
+            max_sequences=self.max_sequences,
+            progress=self.progress,
+        )
 
     def setup(self, stage: str | None = None) -> None:
         train = self.sequences("train")

@@ -19,7 +19,9 @@ The contacts need forward kinematics on the SMPL-X skeleton, which the caller pa
 
 from __future__ import annotations
 
+import functools
 import json
+import logging
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -30,7 +32,9 @@ import numpy as np
 import torch
 import yaml
 
+from dgsdp.audio import AudioEncoder
 from dgsdp.data.aistpp import find_list, read_list
+from dgsdp.data.datamodule import MOTION_CACHE_VERSION, DanceDataModule, Sequence, SourceItem, read_sequences
 from dgsdp.errors import ConfigError, DataError
 from dgsdp.motion.axes import (
     points_y_up_to_z_up,
@@ -38,10 +42,12 @@ from dgsdp.motion.axes import (
     root_rotation_y_up_to_z_up,
     root_rotation_z_up_to_y_up,
 )
+from dgsdp.motion.fk import forward_kinematics
 from dgsdp.motion.representation import foot_contacts, pack_pose
 from dgsdp.motion.rotation import matrix_to_6d, sixd_to_matrix
 from dgsdp.resources import FINEDANCE_DIR
 from dgsdp.style.vocab import GenreVocab
+from dgsdp.utils.io import stable_hash
 
 if TYPE_CHECKING:
     from dgsdp.motion.skeleton import Skeleton
@@ -51,7 +57,7 @@ NUM_JOINTS = 52  # SMPL-X without jaw and eyes: 22 body + 15 left hand + 15 righ
 NUM_BODY_JOINTS = 22
 RAW_DIM = 3 + 6 * NUM_JOINTS  # 315
 JOINT_SETS = {"body": NUM_BODY_JOINTS, "full": NUM_JOINTS}
-SKELETON_KINDS = {"body": "body22", "full": "full52"}  # dgsdp.motion.skeleton.smplx_skeleton's kinds
+SKELETONS = {"body": "smplx22", "full": "smplx52"}  # the skeleton of each joint set (dgsdp.motion.skeleton)
 ID_PATTERN = re.compile(r"^\d{3}$")
 # split scheme -> (prefix of its list files, its splits)
 SPLIT_SCHEMES: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -59,6 +65,7 @@ SPLIT_SCHEMES: dict[str, tuple[str, tuple[str, ...]]] = {
     "dancer": ("crossdancer", ("train", "val", "test")),
 }
 MAX_LABEL_BYTES = 1 << 16
+log = logging.getLogger(__name__)
 
 FINEDANCE_GENRES = GenreVocab.from_yaml(FINEDANCE_DIR / "genres.yaml")
 """The fine genres of FineDance's label files, in LODGE's class order (16; the paper counts 22)."""
@@ -292,25 +299,82 @@ def pose_vector(raw: np.ndarray | torch.Tensor, joints: str, fk: ForwardKinemati
     return pack_pose(foot_contacts(positions), trans, rotmats).float().numpy()
 
 
-def finedance_skeleton(joints: str, joints_file: str | Path) -> Skeleton:
-    """The SMPL-X skeleton of ``joints`` (``body`` or ``full``) from the rest joint positions in ``joints_file``.
+def finedance_skeleton(joints: str, joints_file: str | Path | None, *, option: str = "data.smplx_file") -> Skeleton:
+    """The SMPL-X skeleton of ``joints`` (``body``: smplx22, ``full``: smplx52) from the SMPL-X model file or a file
+    of its rest joint positions (``option`` names the setting that gives it, for the error when it is missing).
 
-    The one place that maps this reader's joint sets onto :func:`dgsdp.motion.skeleton.smplx_skeleton`."""
-    from dgsdp.motion.skeleton import smplx_skeleton
+    The one place that maps this reader's joint sets onto the project's skeletons."""
+    from dgsdp.motion.skeleton import skeleton_from_config
 
     _joint_count(joints)
-    return smplx_skeleton(SKELETON_KINDS[joints], joints_file)
+    return skeleton_from_config(SKELETONS[joints], joints_file, option=option)
 
 
-class FineDanceDataModule:
-    """``data=finedance``: the FineDance settings of a run, checked against the dataset folder.
+def motion_namespace(skeleton: Skeleton, fps: int = FPS) -> str:
+    """Cache folder name of processed FineDance motions: the pose vectors depend on the skeleton's joints and rest
+    offsets (the foot contacts come from its FK), so another skeleton or SMPL-X file is another folder."""
+    return f"finedance-motion-v{MOTION_CACHE_VERSION}-{fps}fps-{skeleton.name}-{stable_hash(skeleton.to_dict(), 8)}"
 
-    Training, generation and evaluation on FineDance need pose vectors and forward kinematics on the SMPL-X
-    skeleton, which the training datamodule (:class:`dgsdp.data.datamodule.DanceDataModule`, SMPL 24 joints) does
-    not have yet. Until then :meth:`prepare_data` checks everything it can (settings, the folder, every split's ids,
-    labels and music files) and then stops with a ConfigError saying so. Errors are raised there, not on
-    construction, so that the entry points report them as one clear message.
+
+def load_finedance_sequences(
+    root: str | Path,
+    split: str,
+    *,
+    skeleton: Skeleton,
+    scheme: str = "genre",
+    cache_dir: str | Path,
+    audio_encoder: AudioEncoder | None = None,
+    waveform_sample_rate: int | None = None,
+    vocab: GenreVocab = FINEDANCE_GENRES,
+    max_sequences: int | None = None,
+    progress: bool = True,
+    errors: list[tuple[str, str]] | None = None,
+) -> list[Sequence]:
+    """The sequences of a FineDance split as pose vectors of ``skeleton`` (smplx22: 22 body joints, smplx52: all
+    52) with their music, through the datamodule's cached reading (:func:`dgsdp.data.datamodule.read_sequences`;
+    ``errors`` as there). Each id is its own song: the music id is the sequence id."""
+    joints = {v: k for k, v in SKELETONS.items()}.get(skeleton.name)
+    if joints is None:
+        raise ConfigError(f"FineDance motions are SMPL-X ({', '.join(SKELETONS.values())}), not {skeleton.name}")
+    root = check_root(root)
+
+    def read_motion(path: Path) -> np.ndarray:
+        def fk(rotmats: torch.Tensor, trans: torch.Tensor) -> torch.Tensor:
+            return forward_kinematics(rotmats, trans, skeleton=skeleton)
+
+        return pose_vector(load_motion(path), joints, fk)
+
+    items = []
+    for seq_id in read_split(root, split, scheme)[:max_sequences]:
+        label = read_label(root / "label_json" / f"{seq_id}.json", vocab)
+        items.append(
+            SourceItem(
+                seq_id,
+                label.genre,
+                label.genre_index,
+                seq_id,
+                root / "motion" / f"{seq_id}.npy",
+                read_motion,
+                functools.partial(wav_path, root, seq_id),
+            )  # fmt: skip
+        )
+    return read_sequences(
+        items, split=split, root=root, cache_dir=cache_dir, motion_namespace=motion_namespace(skeleton),
+        audio_encoder=audio_encoder, waveform_sample_rate=waveform_sample_rate, progress=progress, errors=errors,
+    )  # fmt: skip
+
+
+class FineDanceDataModule(DanceDataModule):
+    """``data=finedance``: windows of FineDance for training and evaluation, as :class:`DanceDataModule` makes them
+    from AIST++ (the same batches, windows, normaliser, floor height, loaders and caches), with FineDance's reader.
+
+    ``finedance``: ``joints`` (``body``: the 22 body joints, skeleton smplx22, 139-d pose vectors; ``full``: all
+    52, smplx52, 319-d) and ``split_scheme`` (``genre`` or ``dancer``). The skeleton's rest offsets come from
+    ``smplx_file`` (the SMPL-X model or a file of its rest joints); ``skeleton`` need not be given (it follows
+    ``joints``). Every split's labels and music files are checked in :meth:`prepare_data`, before any processing.
     """
+
+    skeletons = tuple(SKELETONS.values())
 
     def __init__(
         self,
@@ -318,41 +382,66 @@ class FineDanceDataModule:
         cache_dir: str,
         finedance: dict[str, Any] | None = None,
         *,
-        train_split: str = "train",
-        val_split: str = "test",
-        test_split: str = "test",
-        audio_encoder: Any = None,
+        skeleton: str | None = None,
+        smplx_file: str | None = None,
+        fps: int = FPS,
+        vocab: GenreVocab | str = FINEDANCE_GENRES,
         **settings: Any,
     ) -> None:
-        self.root = Path(root).expanduser()
-        self.cache_dir = Path(cache_dir).expanduser()
         options = dict(finedance or {})
         self.joints = str(options.pop("joints", "body"))
         self.scheme = str(options.pop("split_scheme", "genre"))
-        self.joints_file = options.pop("joints_file", None)
-        self.unknown = sorted(options)
-        self.splits = {"train": train_split, "val": val_split, "test": test_split}
-        self.audio_encoder = audio_encoder
-        self.settings = settings  # window and loader settings, for the datamodule to come
-
-    def check(self) -> dict[str, list[str]]:
-        """Check the settings and the folder; return the ids of each split. One DgsdpError for what is wrong."""
-        if self.unknown:
+        if options:
             raise ConfigError(
-                f"unknown data.finedance settings {self.unknown}; known: joints, split_scheme, joints_file"
+                f"unknown data.finedance settings {sorted(options)}; known: joints, split_scheme (the SMPL-X file "
+                "is data.smplx_file)"
             )
         _joint_count(self.joints)
+        if self.scheme not in SPLIT_SCHEMES:
+            raise ConfigError(f"data.finedance.split_scheme={self.scheme!r}: use one of {', '.join(SPLIT_SCHEMES)}")
+        wanted = SKELETONS[self.joints]
+        if skeleton is not None and skeleton != wanted:
+            raise ConfigError(
+                f"data.skeleton={skeleton} disagrees with data.finedance.joints={self.joints} (skeleton {wanted}); "
+                "choose the joints with data.finedance.joints and leave data.skeleton out"
+            )
+        if fps != FPS:
+            raise ConfigError(f"data.fps={fps}: FineDance is recorded at {FPS} FPS and read at that rate")
+        if "synthetic" in settings and settings["synthetic"] is not None:
+            raise ConfigError(
+                "data=finedance does not generate a dataset; write the synthetic FineDance with "
+                "'python -m dgsdp.data.synthetic_finedance <root>'"
+            )
+        settings.pop("synthetic", None)
+        super().__init__(root, cache_dir, skeleton=wanted, smplx_file=smplx_file, fps=fps, vocab=vocab, **settings)
+
+    def settings(self) -> dict[str, Any]:
+        return {**super().settings(), "finedance": {"joints": self.joints, "split_scheme": self.scheme}}
+
+    def check(self) -> dict[str, list[str]]:
+        """Check the folder; return the ids of each split. One DgsdpError for what is wrong (a bad label or a
+        missing song of any split is found here, before any motion is processed)."""
         ids = {stage: read_split(self.root, split, self.scheme) for stage, split in self.splits.items()}
         for seq_id in sorted({i for split_ids in ids.values() for i in split_ids}):
-            read_label(self.root / "label_json" / f"{seq_id}.json")
+            read_label(self.root / "label_json" / f"{seq_id}.json", self.vocab)
             wav_path(self.root, seq_id)
         return ids
 
     def prepare_data(self) -> None:
         ids = self.check()
         counts = ", ".join(f"{stage} {len(i)}" for stage, i in ids.items())
-        raise ConfigError(
-            f"FineDance at {self.root} reads correctly ({counts} sequences, joints={self.joints}), but training, "
-            "generation and evaluation on FineDance are not available yet: they need the SMPL-X skeleton's pose "
-            f"vectors in the training datamodule. Until then, read it with dgsdp.data.finedance (see docs/finedance.md)"
+        log.info("FineDance at %s: %s sequences, joints=%s (%s)", self.root, counts, self.joints, self.skeleton.name)
+
+    def load_split(self, split: str) -> list[Sequence]:
+        return load_finedance_sequences(
+            self.root,
+            split,
+            skeleton=self.skeleton,
+            scheme=self.scheme,
+            cache_dir=self.cache_dir,
+            audio_encoder=self.audio_encoder,
+            waveform_sample_rate=self.waveform_sample_rate,
+            vocab=self.vocab,
+            max_sequences=self.max_sequences,
+            progress=self.progress,
         )

@@ -10,7 +10,8 @@ this generator's stand-ins, not facts about FineDance.
 Ids come from the official split lists that ship with the package, so the shipped lists split the synthetic set:
 one FineDance@Genre test id per genre (test ids on the ignore list are skipped), the others from the training ids
 of both schemes (never 116-123), and one deliberately bad take under an ignored id (202). No split files are
-written. ``synthetic_finedance.json`` (settings, and genre, tempo and split per id) is written last: a folder
+written. ``standin_joints_not_smplx.npy`` holds invented rest joints (:func:`standin_rest_joints`, NOT SMPL-X's)
+to give as ``data.smplx_file`` when training on the synthetic set. ``synthetic_finedance.json`` (settings, and genre, tempo and split per id) is written last: a folder
 without it is an unfinished run and is generated again.
 
 Command line: ``python -m dgsdp.data.synthetic_finedance <root> [--seed 0] [--sequences-per-genre 2]``.
@@ -40,8 +41,11 @@ from dgsdp.motion import axis_angle_to_matrix, points_y_up_to_z_up, root_rotatio
 from dgsdp.resources import FINEDANCE_DIR
 from dgsdp.utils.io import atomic_write_bytes, atomic_write_text
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # 2: writes the stand-in joints file
 MANIFEST = "synthetic_finedance.json"
+STANDIN_JOINTS_FILE = "standin_joints_not_smplx.npy"
+"""Rest joint positions (52, 3) for trying the SMPL-X skeletons on the synthetic set (``data.smplx_file``): invented
+(SMPL-24's body offsets that the project ships, made-up fingers), NOT SMPL-X's. Real FineDance needs SMPL-X's own."""
 IGNORED_ID = "202"  # on the ignore list of both split schemes
 
 
@@ -175,6 +179,28 @@ def synthesize_sequence(
     return raw_motion(points_y_up_to_z_up(torch.from_numpy(trans_m)), rotmats)
 
 
+def standin_rest_joints() -> np.ndarray:
+    """The stand-in rest joints (52, 3) float64, y-up metres, in the order of SMPL-X's 52 joints
+    (:data:`dgsdp.motion.skeleton.SMPLX52_JOINT_NAMES`): the body's 22 from SMPL-24's rest offsets (SMPL's, not
+    SMPL-X's), then per hand five invented straight fingers (index, middle, pinky, ring, thumb; three joints each)
+    pointing away from the wrist along x. Only for the synthetic set; the real data needs SMPL-X's rest joints."""
+    from dgsdp.motion.skeleton import SMPL24
+
+    offsets = np.array(SMPL24.rest_offsets_m[:NUM_BODY_JOINTS])
+    body = np.zeros((NUM_BODY_JOINTS, 3))
+    for j in range(1, NUM_BODY_JOINTS):
+        body[j] = body[SMPL24.parents[j]] + offsets[j]
+    hands = []
+    for side, wrist in ((1.0, 20), (-1.0, 21)):  # left hand towards +x, right towards -x
+        # (base offset from the wrist, segment length): index, middle, pinky, ring, thumb
+        fingers = (((0.09, 0.0, 0.025), 0.035), ((0.095, 0.0, 0.005), 0.037), ((0.08, -0.005, -0.033), 0.025),
+                   ((0.088, -0.003, -0.015), 0.032), ((0.03, -0.015, 0.03), 0.03))  # fmt: skip
+        for base, length in fingers:
+            start = body[wrist] + np.array([side * base[0], base[1], base[2]])
+            hands.extend(start + np.array([side * length * k, 0.0, 0.0]) for k in range(3))
+    return np.concatenate([body, np.array(hands)])
+
+
 def _npy_bytes(array: np.ndarray) -> bytes:
     buffer = io.BytesIO()
     np.save(buffer, array, allow_pickle=False)
@@ -245,7 +271,11 @@ def generate_synthetic_finedance(
         for path in (out_dir / sub).glob(f"*{suffix}"):
             if path.stem not in keep:  # left by an earlier run with other settings
                 path.unlink()
-    manifest = {"settings": asdict(settings), "fps": FPS, "joints": NUM_JOINTS, "sequences": sequences}
+    atomic_write_bytes(out_dir / STANDIN_JOINTS_FILE, _npy_bytes(standin_rest_joints()))
+    manifest = {
+        "settings": asdict(settings), "fps": FPS, "joints": NUM_JOINTS, "sequences": sequences,
+        "standin_joints": {"file": STANDIN_JOINTS_FILE, "note": "invented rest joints for the synthetic set, not SMPL-X's"},
+    }  # fmt: skip
     atomic_write_text(out_dir / MANIFEST, json.dumps(manifest, indent=1, sort_keys=True))
     (out_dir / PARTIAL_MARKER).unlink(missing_ok=True)
     return out_dir
@@ -286,7 +316,8 @@ def main(argv: list[str] | None = None) -> None:
     splits = {s: sum(v["split"] == s for v in sequences.values()) for s in ("train", "test", "ignored")}
     print(
         f"synthetic FineDance in {out}: {len(sequences)} sequences ({splits['train']} train, {splits['test']} test, "
-        f"{splits['ignored']} ignored) ({time.perf_counter() - start:.1f} s)"
+        f"{splits['ignored']} ignored) ({time.perf_counter() - start:.1f} s); stand-in SMPL-X rest joints (invented, "
+        f"not SMPL-X's) for data.smplx_file: {out / STANDIN_JOINTS_FILE}"
     )
 
 

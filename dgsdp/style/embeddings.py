@@ -17,9 +17,9 @@ import torch
 import yaml
 
 from dgsdp.errors import ConfigError, DataError
-from dgsdp.resources import STYLE_PROMPTS_FILE
+from dgsdp.resources import FINEDANCE_PROMPTS_FILE, STYLE_PROMPTS_FILE
 from dgsdp.style.text_encoders import TextEncoder, plain_config
-from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab, split_free_text
+from dgsdp.style.vocab import AISTPP_GENRES, DATASET_VOCABS, GenreVocab, split_free_text
 from dgsdp.utils.io import DiskCache, stable_hash
 
 StyleKind = Literal["none", "onehot", "genre", "prompt"]
@@ -27,6 +27,16 @@ STYLE_KINDS: tuple[str, ...] = ("none", "onehot", "genre", "prompt")
 
 DEFAULT_PROMPTS_FILE = STYLE_PROMPTS_FILE
 """The shipped AIST++ description prompts (``dgsdp/resources/style_prompts/aistpp.yaml``)."""
+DATASET_PROMPTS_FILES = {"aistpp": STYLE_PROMPTS_FILE, "finedance": FINEDANCE_PROMPTS_FILE}
+"""The shipped description prompts of each named vocabulary (:data:`dgsdp.style.vocab.DATASET_VOCABS`)."""
+
+
+def default_prompts_file(vocab: GenreVocab) -> Path:
+    """The shipped prompts of a dataset's vocabulary (FineDance's for FineDance's genres), else AIST++'s."""
+    for name, path in DATASET_PROMPTS_FILES.items():
+        if GenreVocab.named(name) == vocab:
+            return path
+    return DEFAULT_PROMPTS_FILE
 
 
 class StyleBank:
@@ -160,7 +170,7 @@ class StyleEmbedder:
             raise ConfigError(f"Unknown style kind {kind!r}; use one of {', '.join(STYLE_KINDS)}.")
         self.kind = kind
         self.vocab = _as_vocab(vocab)
-        self.prompts_file = Path(prompts_file) if prompts_file is not None else DEFAULT_PROMPTS_FILE
+        self.prompts_file = Path(prompts_file) if prompts_file is not None else default_prompts_file(self.vocab)
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
         if kind in ("genre", "prompt") and text_encoder is None:
             raise ConfigError(f"style kind {kind!r} needs a text encoder; set text_encoder (e.g. text_encoder=minilm).")
@@ -284,6 +294,8 @@ def _as_vocab(vocab: Any) -> GenreVocab:
         return AISTPP_GENRES
     if isinstance(vocab, GenreVocab):
         return vocab
+    if isinstance(vocab, str) and vocab in DATASET_VOCABS:
+        return GenreVocab.named(vocab)
     if isinstance(vocab, str | os.PathLike):
         return GenreVocab.from_yaml(vocab)
     return GenreVocab(plain_config(vocab))

@@ -16,6 +16,7 @@ from pathlib import Path
 import yaml
 
 from dgsdp.errors import ConfigError, DataError
+from dgsdp.resources import FINEDANCE_DIR
 
 FREE_TEXT_PREFIX = "text:"
 """``style="text: locking"`` uses the words as a free-text description even when they look like a genre name."""
@@ -70,6 +71,14 @@ class GenreVocab:
         if not isinstance(data, Mapping | list):
             raise DataError(f"Genre vocabulary file {path} must hold a `code: name` mapping or a list of pairs.")
         return cls(data)
+
+    @classmethod
+    def named(cls, name: str) -> GenreVocab:
+        """The genre vocabulary of a dataset the project reads, by name (see :data:`DATASET_VOCABS`)."""
+        if name not in DATASET_VOCABS:
+            raise ConfigError(f"no genre vocabulary named {name!r}; named ones: {', '.join(DATASET_VOCABS)}")
+        found = DATASET_VOCABS[name]
+        return found if isinstance(found, GenreVocab) else cls.from_yaml(found)
 
     @property
     def codes(self) -> list[str]:
@@ -172,3 +181,7 @@ AISTPP_GENRES = GenreVocab(
     ]
 )
 """The 10 AIST++ genres in the index order used throughout the project."""
+
+DATASET_VOCABS: dict[str, GenreVocab | Path] = {"aistpp": AISTPP_GENRES, "finedance": FINEDANCE_DIR / "genres.yaml"}
+"""The genre vocabularies of the datasets the project reads, by the name configs give (``data.vocab``,
+``style.vocab``): AIST++'s 10 genres, FineDance's 16 (``dgsdp/resources/finedance/genres.yaml``)."""

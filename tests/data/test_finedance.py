@@ -204,14 +204,14 @@ def test_pose_vectors_body_and_full(synthetic):
     assert np.allclose(hands, [1, 0, 0, 0, 1, 0])
 
 
-def test_skeleton_adapter_asks_for_the_matching_kind(monkeypatch):
+def test_skeleton_adapter_asks_for_the_matching_skeleton(monkeypatch):
     import dgsdp.motion.skeleton as skeleton
 
     calls = []
-    monkeypatch.setattr(skeleton, "smplx_skeleton", lambda kind, path: calls.append((kind, path)), raising=False)
+    monkeypatch.setattr(skeleton, "skeleton_from_config", lambda name, path, option: calls.append((name, path, option)))
     fd.finedance_skeleton("body", "j.npy")
-    fd.finedance_skeleton("full", "j.npy")
-    assert calls == [("body22", "j.npy"), ("full52", "j.npy")]
+    fd.finedance_skeleton("full", "j.npy", option="x.y")
+    assert calls == [("smplx22", "j.npy", "data.smplx_file"), ("smplx52", "j.npy", "x.y")]
 
 
 def test_generation_is_deterministic_and_reused(synthetic, tmp_path):
@@ -235,23 +235,3 @@ def test_generator_refuses_a_foreign_folder_and_bad_settings(tmp_path):
         generate_synthetic_finedance(tmp_path, **SMALL)
     with pytest.raises(ConfigError, match="sequences_per_genre"):
         generate_synthetic_finedance(tmp_path / "new", sequences_per_genre=1)
-
-
-def test_data_config_checks_the_folder_then_says_training_waits(synthetic, tmp_path):
-    from hydra.utils import instantiate
-
-    from dgsdp.cli.config import compose_config
-
-    cfg = compose_config("train", ["data=finedance", f"data.root={synthetic}", f"paths.root_dir={tmp_path}"])
-    assert cfg.data.finedance.joints == "body" and cfg.data.finedance.split_scheme == "genre"
-    with pytest.raises(ConfigError, match=r"reads correctly \(train 16, val 16, test 16 sequences.*not available yet"):
-        instantiate(cfg.data, audio_encoder=None).prepare_data()
-    for overrides, error, message in [
-        (["data.finedance.joints=hands"], ConfigError, "body"),
-        (["data.finedance.split_scheme=dancer", "data.val_split=val"], ConfigError, "val 2"),
-        (["+data.finedance.frames=3"], ConfigError, "unknown data.finedance"),
-        ([f"data.root={tmp_path / 'nowhere'}"], DataError, "no FineDance dataset"),
-    ]:
-        cfg = compose_config("train", ["data=finedance", f"data.root={synthetic}", *overrides])
-        with pytest.raises(error, match=message):
-            instantiate(cfg.data).prepare_data()
