@@ -54,6 +54,8 @@ PAPER_ROWS = {
     "table5_row6": ("jukebox", "onehot", "concat"),
     "edge": ("jukebox", "none", None),
     "dgsdp": ("jukebox", "prompt", "modulation"),
+    "finedance_edge": ("librosa", "none", None),
+    "finedance_dgsdp": ("jukebox", "prompt", "modulation"),
 }
 
 
@@ -124,3 +126,20 @@ def test_edge_parameter_count_matches_paper(tmp_path):
     print(f"EDGE-size denoiser: {n_params:,} parameters")
     assert abs(n_params - 49.5e6) <= 1e6
     assert Path(CONFIG_DIR / "experiment" / "edge.yaml").is_file()
+
+
+def test_finedance_experiments_read_finedance(tmp_path):
+    from dgsdp.style.vocab import GenreVocab
+
+    edge = compose_config("train", ["experiment=finedance_edge"], output_dir=tmp_path)
+    assert edge.data._target_ == "dgsdp.data.finedance.FineDanceDataModule" and edge.data.finedance.joints == "body"
+    assert (edge.audio.loudness_lufs, edge.audio.mfcc_fmax_hz, edge.audio.standardize) == (None, None, "none")
+    assert audio_encoder_from_config(edge).output_dim == 35
+    assert dict(edge.loss) == dict(compose_config("train", ["experiment=edge"], output_dir=tmp_path).loss)
+    assert edge.model.rotary_placement == "input" and edge.model.null_music == "output"  # EDGE's architecture
+    dgsdp = compose_config("train", ["experiment=finedance_dgsdp"], output_dir=tmp_path)
+    style = style_embedder_from_config(dgsdp)
+    assert style.vocab == GenreVocab.named("finedance") and style.prompts_file.name == "finedance.yaml"
+    # the tiny CPU variant of each composes: a small model on the CPU
+    tiny = compose_config("train", ["experiment=finedance_edge", "debug=tiny", "trainer=cpu"], output_dir=tmp_path)
+    assert tiny.model.d_model == 32 and tiny.trainer.accelerator == "cpu" and tiny.trainer.precision == "32-true"
