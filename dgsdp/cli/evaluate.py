@@ -16,6 +16,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from dgsdp.cli.config import CONFIG_PATH, compose_config
 from dgsdp.cli.runtime import run_main
+from dgsdp.data.finedance import SPLIT_SCHEMES, is_finedance
 from dgsdp.errors import ConfigError
 from dgsdp.evaluation.protocols import ProtocolSpec
 from dgsdp.evaluation.results import log_results, write_results
@@ -41,7 +42,7 @@ def _data_location(cfg: DictConfig, spec: RunSpec) -> tuple[Path, Path]:
     if cfg.data.get("root"):
         return Path(str(cfg.data.root)).expanduser(), cache
     root = Path(str(data["root"])).expanduser() if data.get("root") else None
-    stored = root is not None and (root / "motions").is_dir()
+    stored = root is not None and ((root / "motions").is_dir() or is_finedance(root))
     synthetic = data.get("synthetic")
     if isinstance(synthetic, dict):
         import inspect
@@ -63,8 +64,19 @@ def _data_location(cfg: DictConfig, spec: RunSpec) -> tuple[Path, Path]:
         return root, cache
     raise ConfigError(
         f"the dataset the checkpoint was trained on ({root or 'not recorded'}) is not here; give "
-        "data.root=<AIST++-layout folder>"
+        "data.root=<AIST++-layout or FineDance folder>"
     )
+
+
+def _split_scheme(spec: RunSpec) -> str:
+    """FineDance's split scheme the checkpoint was trained with (``genre`` when not recorded or not FineDance)."""
+    finedance = (spec.record.get("data") or {}).get("finedance") or {}
+    scheme = finedance.get("split_scheme", "genre") if isinstance(finedance, dict) else "genre"
+    if scheme not in SPLIT_SCHEMES:
+        raise ConfigError(
+            f"the checkpoint records FineDance split scheme {scheme!r}; known: {', '.join(SPLIT_SCHEMES)}"
+        )
+    return scheme
 
 
 def run_info(spec: RunSpec) -> dict[str, Any]:
@@ -102,7 +114,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     evaluator = Evaluator(
         generator, spec, data_root=root, cache_dir=cache, sampling=sampling, metrics_mode=cfg.metrics.mode,
         classifier_method=cfg.metrics.classifier, seed=int(cfg.seed), progress=bool(cfg.progress),
-        cleanup=_cleanup(cfg),
+        cleanup=_cleanup(cfg), split_scheme=_split_scheme(model.spec),
     )  # fmt: skip
     results = evaluator.run()
     results["checkpoint"] = str(Path(str(cfg.checkpoint)).expanduser().resolve())

@@ -111,6 +111,12 @@ def check_root(root: str | Path) -> Path:
     return root
 
 
+def is_finedance(root: str | Path) -> bool:
+    """Whether a folder holds the FineDance layout (``motion/``; AIST++'s has ``motions/``)."""
+    root = Path(root).expanduser()
+    return (root / "motion").is_dir() and not (root / "motions").is_dir()
+
+
 def _list_ids(path: Path) -> list[str]:
     ids = read_list(path)
     bad = [i for i in ids if not ID_PATTERN.match(i)]

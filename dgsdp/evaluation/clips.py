@@ -11,6 +11,7 @@ from dgsdp.audio import AudioEncoder, FeatureCache
 from dgsdp.data.aistpp import music_path
 from dgsdp.data.datamodule import Sequence as DanceSequence
 from dgsdp.data.datamodule import load_sequences, window_starts
+from dgsdp.data.finedance import SPLIT_SCHEMES, is_finedance, load_finedance_sequences, wav_path
 from dgsdp.data.synthetic import MANIFEST as SYNTHETIC_MANIFEST
 from dgsdp.data.synthetic import music_beat_times_s, read_manifest
 from dgsdp.errors import DataError
@@ -18,6 +19,7 @@ from dgsdp.evaluation.features import MODEL_FPS
 from dgsdp.evaluation.protocols import ProtocolSpec
 from dgsdp.evaluation.warning_log import WarningLog
 from dgsdp.metrics import music_beats_from_features
+from dgsdp.motion import SMPL24, Skeleton
 from dgsdp.resources import CONFIG_DIR
 
 ALL_SPLITS = ("train", "val", "test")
@@ -77,8 +79,12 @@ class ClipSource:
         seed: int,
         warnings: WarningLog,
         progress: bool = True,
+        skeleton: Skeleton = SMPL24,
+        split_scheme: str = "genre",
     ) -> None:
         self.spec = spec
+        self.skeleton = skeleton
+        self.split_scheme = split_scheme  # FineDance's split scheme (genre or dancer)
         self.data_root = Path(data_root).expanduser()
         self.cache_dir = Path(cache_dir).expanduser()
         self.audio_encoder = audio_encoder
@@ -87,6 +93,7 @@ class ClipSource:
         self.progress = progress
         self._beat_encoder: AudioEncoder | None = None
         self._beats: dict[str, np.ndarray] = {}
+        self.finedance = is_finedance(self.data_root)
         manifest = self.data_root / SYNTHETIC_MANIFEST
         self._manifest = read_manifest(self.data_root) if manifest.is_file() else None
 
@@ -108,11 +115,20 @@ class ClipSource:
         """Sequences of a split (with the model's music features), or [] with a warning when the dataset has no such
         split; unreadable files are one DataError listing them all."""
         bad: list[tuple[str, str]] = []
+        encoder = self.audio_encoder if with_music else None
         try:
-            sequences = load_sequences(
-                self.data_root, split, fps=MODEL_FPS, cache_dir=self.cache_dir,
-                audio_encoder=self.audio_encoder if with_music else None, progress=self.progress, errors=bad,
-            )  # fmt: skip
+            if self.finedance:
+                if split not in SPLIT_SCHEMES[self.split_scheme][1]:
+                    raise DataError(f"FineDance's {self.split_scheme!r} split scheme has no split {split!r}")
+                sequences = load_finedance_sequences(
+                    self.data_root, split, skeleton=self.skeleton, scheme=self.split_scheme,
+                    cache_dir=self.cache_dir, audio_encoder=encoder, progress=self.progress, errors=bad,
+                )  # fmt: skip
+            else:
+                sequences = load_sequences(
+                    self.data_root, split, fps=MODEL_FPS, cache_dir=self.cache_dir, audio_encoder=encoder,
+                    progress=self.progress, errors=bad,
+                )  # fmt: skip
         except DataError as e:  # no such split in this dataset
             self.warnings.add("data", "-", f"split {split!r} skipped: {e}")
             return []
@@ -139,10 +155,14 @@ class ClipSource:
 
                 node = OmegaConf.to_container(OmegaConf.load(CONFIG_DIR / "audio" / "librosa.yaml"))
                 self._beat_encoder = build(node, "audio", where="audio")
-            path = music_path(self.data_root, seq.music_id)
+            path = self.music_file(seq)
             feats = FeatureCache(self.cache_dir).features_for_file(self._beat_encoder, path, music_id=seq.music_id)
         self._beats[seq.music_id] = music_beats_from_features(feats)
         return self._beats[seq.music_id]
+
+    def music_file(self, seq: DanceSequence) -> Path:
+        """The song of a sequence: FineDance's ``music_wav/<id>.wav``, AIST++'s ``wavs/<music id>.wav``."""
+        return wav_path(self.data_root, seq.music_id) if self.finedance else music_path(self.data_root, seq.music_id)
 
     def clips(self, sequences: list[DanceSequence], seconds: float) -> list[Clip]:
         """Clips of ``seconds`` from the protocol's music: every window ``stride_seconds`` apart, or (stride
@@ -156,7 +176,7 @@ class ClipSource:
                 starts = window_starts(len(seq.motion), n_frames, int(round(self.spec.stride_seconds * MODEL_FPS)))
                 n = n_frames
             beats, known = self.music_beats(seq), self.known_beats(seq)
-            song = music_path(self.data_root, seq.music_id)
+            song = self.music_file(seq)
             for s in starts:
                 rel = beats[(beats >= s) & (beats < s + n)] - s
                 known_rel = None if known is None else known[(known >= s) & (known < s + n)] - s

@@ -43,10 +43,18 @@ def upsample_joints(joints: np.ndarray, factor: int = UPSAMPLE) -> np.ndarray:
     return (1.0 - w) * joints[lo] + w * joints[lo + 1]
 
 
-def feature_joints(joints_z_up_30fps: np.ndarray, anchor: bool = True) -> np.ndarray:
-    """(T, 24, 3) z-up 30 FPS -> (2T - 1, 24, 3) y-up 60 FPS, root-anchored when ``anchor``."""
-    y_up = z_up_to_y_up(upsample_joints(joints_z_up_30fps))
+def feature_joints(joints_z_up_30fps: np.ndarray, anchor: bool = True, upsample: bool = True) -> np.ndarray:
+    """(T, 24, 3) z-up 30 FPS -> (2T - 1, 24, 3) y-up 60 FPS, root-anchored when ``anchor``. ``upsample`` False
+    keeps the 30 FPS frames (T, 24, 3), for protocols that pass them to the 60 FPS feature code as LODGE does."""
+    y_up = z_up_to_y_up(upsample_joints(joints_z_up_30fps) if upsample else np.asarray(joints_z_up_30fps, np.float64))
     return anchor_root(y_up) if anchor else y_up
+
+
+def root_relative(joints: np.ndarray) -> np.ndarray:
+    """Every joint but the root relative to the root of its frame; the root itself is kept (LODGE's features)."""
+    out = np.array(joints, dtype=np.float64)
+    out[..., 1:, :] -= out[..., :1, :]
+    return out
 
 
 def dance_features(

@@ -16,6 +16,7 @@ from dgsdp.errors import ConfigError
 
 METRICS: tuple[str, ...] = ("BeatAlign", "PFC", "FID_k", "FID_g", "Div_k", "Div_g", "StyleAcc")
 REFERENCES = ("clips", "dataset")
+FEATURE_JOINTS = (24, 22)  # SMPL's 24 joints, or the 22 body joints (LODGE: kinetic features of joints 0-21)
 ROW_PARTS = ("length", "guidance", "task")
 GROUND_TRUTH = "ground_truth"
 
@@ -46,6 +47,10 @@ class ProtocolSpec:
     max_dances: int | None = None
     reference: str = "clips"
     anchor_root: bool = True
+    root_relative: bool = False
+    feature_joints: int = 24
+    feature_upsample: bool = True
+    reference_seconds: float | None = None
     classifier_seconds: float = 5.0
     seed_frames: int = 30
     end_frames: int = 30
@@ -81,6 +86,12 @@ class ProtocolSpec:
             raise ConfigError(f"protocol.trials must be at least 1; got {self.trials}")
         if self.clips_per_trial is not None and self.clips_per_trial < 2:
             raise ConfigError(f"protocol.clips_per_trial must be >= 2 (FID and diversity); got {self.clips_per_trial}")
+        if self.feature_joints not in FEATURE_JOINTS:
+            raise ConfigError(
+                f"protocol.feature_joints must be one of {list(FEATURE_JOINTS)}; got {self.feature_joints}"
+            )
+        if self.reference_seconds is not None and self.reference_seconds <= 0:
+            raise ConfigError(f"protocol.reference_seconds must be positive or null; got {self.reference_seconds}")
         if self.reference not in REFERENCES:
             raise ConfigError(f"protocol.reference must be one of {list(REFERENCES)}; got {self.reference!r}")
         bad = [p for p in self.row_by if p not in ROW_PARTS]

@@ -27,7 +27,7 @@ from tqdm.auto import tqdm
 from dgsdp.data.datamodule import Sequence as DanceSequence
 from dgsdp.errors import DataError
 from dgsdp.evaluation.clips import ALL_SPLITS, ClipSource
-from dgsdp.evaluation.features import motion_to_joints
+from dgsdp.evaluation.features import MODEL_FPS, motion_to_joints
 from dgsdp.evaluation.protocols import METRICS, ProtocolSpec
 from dgsdp.evaluation.sampling import sample_clips
 from dgsdp.evaluation.scoring import Scorer, summarise
@@ -39,8 +39,8 @@ from dgsdp.sampling import SamplingSettings
 class Evaluator:
     """Evaluates one trained model, held by a :class:`DanceGenerator`, under a protocol.
 
-    data_root / cache_dir: the AIST++-layout dataset and the feature cache; the model's own audio encoder gives
-    the music features."""
+    data_root / cache_dir: the dataset (AIST++ or FineDance layout; ``split_scheme``: FineDance's) and the feature
+    cache; the model's own audio encoder gives the music features, its skeleton the real dances' pose vectors."""
 
     def __init__(
         self,
@@ -55,6 +55,7 @@ class Evaluator:
         seed: int = 0,
         progress: bool = True,
         cleanup: bool = False,
+        split_scheme: str = "genre",
     ) -> None:
         self.generator = generator
         self.cleanup = bool(cleanup)  # score the raw model (False) or its dances as generate.py writes them
@@ -65,9 +66,12 @@ class Evaluator:
         self.warnings = WarningLog()
         self.source = ClipSource(
             spec, data_root=data_root, cache_dir=cache_dir, audio_encoder=generator.audio_encoder, seed=seed,
-            warnings=self.warnings, progress=progress,
+            warnings=self.warnings, progress=progress, skeleton=generator.skeleton, split_scheme=split_scheme,
         )  # fmt: skip
-        self.scorer = Scorer(spec, mode=metrics_mode, classifier_method=classifier_method, warnings=self.warnings)
+        self.skeleton = generator.skeleton  # the dataset's dances are read as this skeleton's pose vectors
+        self.scorer = Scorer(
+            spec, mode=metrics_mode, classifier_method=classifier_method, warnings=self.warnings, skeleton=self.skeleton
+        )
 
     # --- the protocol --------------------------------------------------------------------------------------
     def run(self) -> dict[str, Any]:
@@ -89,7 +93,8 @@ class Evaluator:
                 seen.update(
                     {s.name: s for s in (self.source.load_split(split, with_music=False) if seqs is None else seqs)}
                 )
-            _, pk, pg = self.scorer.features([motion_to_joints(s.motion) for s in seen.values()])
+            cut = None if spec.reference_seconds is None else int(round(spec.reference_seconds * MODEL_FPS))
+            _, pk, pg = self.scorer.features([motion_to_joints(s.motion[:cut], self.skeleton) for s in seen.values()])
             pool = (pk, pg)
 
         variants = spec.variants()
@@ -101,7 +106,7 @@ class Evaluator:
         gt_rows = []
         references: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         for seconds, clips in by_length.items():
-            gt_joints = [motion_to_joints(c.motion) for c in clips]
+            gt_joints = [motion_to_joints(c.motion, self.skeleton) for c in clips]
             if pool is None:
                 _, rk, rg = self.scorer.features(gt_joints)
                 references[seconds] = (rk, rg)

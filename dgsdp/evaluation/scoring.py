@@ -9,7 +9,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from dgsdp.data.datamodule import window_starts
-from dgsdp.evaluation.features import FEATURE_FPS, MODEL_FPS, beats_to_feature_fps, feature_joints, motion_to_joints
+from dgsdp.evaluation.features import (
+    FEATURE_FPS,
+    MODEL_FPS,
+    beats_to_feature_fps,
+    feature_joints,
+    motion_to_joints,
+    root_relative,
+)
 from dgsdp.evaluation.protocols import ProtocolSpec
 from dgsdp.evaluation.warning_log import WarningLog
 from dgsdp.metrics import (
@@ -21,6 +28,7 @@ from dgsdp.metrics import (
     kinetic_features_batch,
     pfc,
 )
+from dgsdp.motion import SMPL24, Skeleton
 
 if TYPE_CHECKING:
     from dgsdp.data.datamodule import Sequence as DanceSequence
@@ -44,18 +52,32 @@ class Scorer:
 
     mode: paper (the reference arithmetic) or corrected; classifier_method: logistic or centroid."""
 
-    def __init__(self, spec: ProtocolSpec, *, mode: str, classifier_method: str, warnings: WarningLog) -> None:
+    def __init__(
+        self, spec: ProtocolSpec, *, mode: str, classifier_method: str, warnings: WarningLog,
+        skeleton: Skeleton = SMPL24,
+    ) -> None:  # fmt: skip
         self.spec = spec
+        self.skeleton = skeleton  # of the real dances' pose vectors (the classifier's training windows)
         self.mode = mode
         self.classifier_method = classifier_method
         self.warnings = warnings
 
     def features(self, joints: Sequence[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
-        """60 FPS y-up joints and kinetic (N, 72) and geometric (N, 32) features of 30 FPS z-up joints."""
-        prepared = [feature_joints(j, anchor=self.spec.anchor_root) for j in joints]
-        kin = kinetic_features_batch(prepared, fps=FEATURE_FPS, up_axis="y", mode=self.mode)
-        geo = geometric_features_batch(prepared, fps=FEATURE_FPS, up_axis="y", mode=self.mode)
-        return prepared, kin, geo
+        """y-up joints as BeatAlign reads them (60 FPS, or the 30 FPS frames where ``feature_upsample`` is off) and
+        kinetic (N, 72; N, 66 with ``feature_joints`` 22: the first 22 joints' columns) and geometric (N, 32)
+        features of 30 FPS z-up joints (made root-relative first where ``root_relative`` is on). The feature code
+        always runs with its 60 FPS constants."""
+        spec = self.spec
+        prepared = [feature_joints(j, anchor=spec.anchor_root, upsample=spec.feature_upsample) for j in joints]
+        measured = [root_relative(p) for p in prepared] if spec.root_relative else prepared
+        kin = kinetic_features_batch(measured, fps=FEATURE_FPS, up_axis="y", mode=self.mode)
+        geo = geometric_features_batch(measured, fps=FEATURE_FPS, up_axis="y", mode=self.mode)
+        return prepared, kin[:, : 3 * spec.feature_joints], geo
+
+    def beats(self, clip: Clip) -> np.ndarray:
+        """The clip's music beats as frame indices of :meth:`features`' joints."""
+        beats = clip.scoring_beats_30fps
+        return beats_to_feature_fps(beats) if self.spec.feature_upsample else np.asarray(beats, dtype=np.int64)
 
     def fit_classifier(self, train: list[DanceSequence]) -> GenreClassifier | None:
         """Genre classifier on kinetic + geometric features of training-split windows; None if it cannot be fitted."""
@@ -65,7 +87,7 @@ class Scorer:
         for seq in train:
             starts = window_starts(len(seq.motion), n, stride) or [0]
             for s in starts:
-                joints.append(motion_to_joints(seq.motion[s : s + n]))
+                joints.append(motion_to_joints(seq.motion[s : s + n], self.skeleton))
                 labels.append(seq.genre_index)
         if not joints:
             self.warnings.add("classifier", "StyleAcc", "no training sequences; StyleAcc reported as n/a")
@@ -93,8 +115,7 @@ class Scorer:
         out: dict[str, float | None] = {}
         out["BeatAlign"] = guard(
             row, "BeatAlign",
-            lambda: np.mean([beat_alignment(p, beats_to_feature_fps(c.scoring_beats_30fps), fps=FEATURE_FPS)
-                             for p, c in zip(prepared, clips)]),
+            lambda: np.mean([beat_alignment(p, self.beats(c), fps=FEATURE_FPS) for p, c in zip(prepared, clips)]),
         )  # fmt: skip
         out["PFC"] = guard(row, "PFC", lambda: np.mean([pfc(j, fps=MODEL_FPS, up_axis="z") for j in joints]))
         if reference is None:
