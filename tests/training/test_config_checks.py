@@ -21,7 +21,7 @@ from dgsdp.errors import CheckpointError, ConfigError, DgsdpError
         ("model.n_heads=3", "must be a multiple of model.n_heads=3"),
         ("trainer.accelerator=quantum", "trainer.accelerator='quantum' is not one of"),
         ("trainer.devices=0", "trainer.devices must be a positive number"),
-        ("evaluate=table9", "evaluate: 'table9' is not one of bailando, table1, table2, table3"),
+        ("evaluate=table9", "evaluate: 'table9' is not one of bailando, finedance, table1, table2, table3"),
         ("ckpt_path=/nonexistent/last.ckpt", "does not exist"),
         ("data.tempo_augment=[1.2,0.9]", "needs 0 < lo <= hi"),
         ("audio=none data.tempo_augment=[0.8,1.25]", "needs an audio encoder that gives features per frame"),
