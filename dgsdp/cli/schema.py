@@ -31,6 +31,7 @@ class DenoiserConfig:
     null_music: str = "input"
     aligned_music: bool = False
     style_film: bool = False
+    style_standardize: float | None = None
     guidance_inputs: int = 0
     gradient_checkpointing: bool = False
     ema_decay: float = 0.9999

@@ -165,6 +165,7 @@ class DanceDenoiser(nn.Module):
         null_music: str = "input",
         aligned_music: bool = False,
         style_film: bool = False,
+        style_standardize: float | None = None,
         guidance_inputs: int = 0,
         gradient_checkpointing: bool = False,
     ) -> None:
@@ -175,6 +176,8 @@ class DanceDenoiser(nn.Module):
             raise ValueError(f"unknown null_music {null_music!r}; use one of {NULL_MUSIC}")
         if guidance_inputs not in GUIDANCE_INPUTS:
             raise ValueError(f"guidance_inputs must be one of {GUIDANCE_INPUTS}, got {guidance_inputs!r}")
+        if style_standardize is not None and not (0 < style_standardize <= 100):
+            raise ValueError(f"style_standardize must be a number in (0, 100] or null, got {style_standardize!r}")
         self.null_music_at = null_music
         self.gradient_checkpointing = gradient_checkpointing
         self.pose_dim, self.seq_len, self.d_model = pose_dim, seq_len, d_model
@@ -202,6 +205,13 @@ class DanceDenoiser(nn.Module):
         # style in every FiLM too (in neither paper): the style's projection joins the diffusion step's condition,
         # which scales and shifts every sub-block of every decoder layer
         self.style_film_proj = nn.Linear(style_dim, d_model) if style_dim and style_film else None
+        # style standardisation (in neither paper): every style vector, free text included, is centred on the training
+        # style bank's mean and scaled to a per-dimension root mean square of ``style_standardize``, so that what
+        # tells the genres apart, not what their text embeddings share, reaches the decoder (set_style_statistics)
+        self.style_standardize = style_standardize if style_dim else None
+        if self.style_standardize is not None:
+            self.register_buffer("style_mean", torch.zeros(style_dim))
+            self.register_buffer("style_scale", torch.tensor(1.0))
         self.music_encoder = nn.Sequential(
             *(
                 EncoderLayer(d_model, n_heads, ff_dim, dropout, rotary_placement=rotary_placement)
@@ -245,12 +255,29 @@ class DanceDenoiser(nn.Module):
             return checkpoint(layer, *args, use_reentrant=False)
         return layer(*args)
 
+    def set_style_statistics(self, vectors: torch.Tensor) -> None:
+        """Centre and scale style vectors by these (the training style bank, (N, ds)) from now on; a no-op unless
+        the model was built with ``style_standardize``. The statistics are buffers: checkpoints keep them."""
+        if self.style_standardize is None:
+            return
+        if vectors.ndim != 2 or vectors.shape[-1] != self.style_dim or len(vectors) < 2:
+            raise ValueError(f"style statistics need (N >= 2, {self.style_dim}) vectors, got {tuple(vectors.shape)}")
+        vectors = vectors.to(self.style_mean)
+        mean = vectors.mean(0)
+        rms = (vectors - mean).pow(2).mean().sqrt()
+        if not torch.isfinite(rms) or rms <= 0:
+            raise ValueError("the style bank's vectors are all equal (or not finite): nothing to standardise by")
+        self.style_mean.copy_(mean)
+        self.style_scale.fill_(self.style_standardize / float(rms))
+
     def _style(self, style: torch.Tensor | None, keep: torch.Tensor, batch: int) -> torch.Tensor | None:
         if not self.style_dim:
             return None
         null = self.null_style.expand(batch, self.style_dim)
         if style is None:
             return null
+        if self.style_standardize is not None:
+            style = (style - self.style_mean.to(style.dtype)) * self.style_scale.to(style.dtype)
         if style.ndim == 3:  # per-frame style (B, T, ds)
             return torch.where(keep[:, None, None], style, null[:, None, :])
         return torch.where(keep[:, None], style, null)

@@ -82,6 +82,8 @@ class TrainedModel(nn.Module):
             )
         self.style_vectors.copy_(bank.vectors)
         self.style_genre_index.copy_(bank.genre_index)
+        for denoiser in (self.denoiser, self.ema.module):
+            denoiser.set_style_statistics(self.style_vectors)
 
     def set_floor_height(self, metres: float) -> None:
         """Store the floor height of the training data (z-up metres, see dgsdp.motion.floor)."""
