@@ -1,0 +1,27 @@
+"""Skeletons as data left the SMPL-24 path as it was: a checkpoint written by the code before the skeleton
+generalisation (commit b3e039a: the tiny one-hot model of ``gen_helpers.train_tiny_checkpoint``), with its song
+and seed, gives the dance that code gave, raw and finished (beat sync and floor cleanup).
+
+The fixture was written by the code before; on the machine that wrote it the current code gives the same tensors
+bit for bit. The test allows 1e-5 (metres and 6D units) so that another CPU's vector instructions, which round a
+few sums differently, do not fail it."""
+
+from pathlib import Path
+
+import numpy as np
+
+from dgsdp.generation.pipeline import DanceGenerator
+from dgsdp.motion import SMPL24
+
+FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "smpl24_before_skeletons"
+
+
+def test_an_old_checkpoint_gives_the_same_dance(tmp_path):
+    generator = DanceGenerator.from_checkpoint(FIXTURE / "tiny.ckpt", cache_dir=tmp_path)
+    assert generator.skeleton == SMPL24  # a checkpoint without a skeleton is an SMPL-24 run
+    dance = generator.dance_to_song(FIXTURE / "song.wav", "BR", seed=3, num_samples=2)
+    expected = np.load(FIXTURE / "dance.npz")
+    assert dance.motion.shape == (2, 180, 151)
+    np.testing.assert_allclose(dance.raw.numpy(), expected["raw"], rtol=0, atol=1e-5)
+    np.testing.assert_allclose(dance.motion.numpy(), expected["motion"], rtol=0, atol=1e-5)
+    assert not np.allclose(expected["raw"], expected["motion"], atol=1e-3)  # the finishing did something to check
