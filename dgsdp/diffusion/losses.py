@@ -9,6 +9,9 @@
   motion is there, ``relu(1 - speed / window mean speed)`` (speed: the mean absolute first difference of the non-contact
   channels), so that moving where the training dance holds still costs more. Training dances hold still on the beat; the
   term is a recipe choice for teaching a short run where to pause (docs/notes/2026-11-25-the-models-own-timing.md).
+- root (in neither paper; weight 0 = off): the velocity term's error on the root translation's 3 channels alone. In
+  the velocity term they are 3 of 147 channels, and the min-max normaliser maps the whole stage (metres of travel)
+  onto the range it gives a joint's rotation channel, so a small error there is a body that slides (docs/style.md).
 
 FK runs on unnormalised values (the normaliser is passed in), so the FK and foot terms are in metres. EDGE runs
 FK on normalised values; its author reported no difference. Unnormalising keeps the joint positions physical.
@@ -22,7 +25,7 @@ import torch
 import torch.nn.functional as F
 
 from dgsdp.motion import SMPL24, MinMaxNormalizer, Skeleton, unpack_pose
-from dgsdp.motion.representation import CONTACT_CHANNELS
+from dgsdp.motion.representation import CONTACT_CHANNELS, ROOT_CHANNELS
 
 
 @dataclass
@@ -33,6 +36,7 @@ class LossWeights:
     foot: float = 10.942
     contact_threshold: float = 0.95
     pause: float = 0.0
+    root: float = 0.0
 
 
 def dance_loss(
@@ -52,6 +56,9 @@ def dance_loss(
         speed = true_vel.abs().mean(dim=-1)  # (B, T - 1)
         stillness = (1 - speed / speed.mean(dim=1, keepdim=True).clamp_min(1e-8)).clamp_min(0)
         terms["pause"] = (stillness[..., None] * (pred_vel - true_vel).square()).mean()
+    if weights.root:
+        root = slice(ROOT_CHANNELS.start - motion.start, ROOT_CHANNELS.stop - motion.start)
+        terms["root"] = F.mse_loss(pred_vel[..., root], true_vel[..., root])
     if weights.fk or weights.foot:
         pred_parts = unpack_pose(normalizer.unnormalize(pred_x0), skeleton)
         pred_joints = pred_parts.joints()

@@ -170,3 +170,17 @@ def test_pause_term_weights_the_velocity_error_by_the_true_motion_stillness():
     assert torch.allclose(terms["pause"], expected, atol=1e-7)
     assert torch.allclose(terms["loss"], expected, atol=1e-7)
     assert "pause" not in dance_loss(pred, x0, None, only("velocity"))  # off (weight 0): not computed
+
+
+def test_root_term_is_the_velocity_error_of_the_root_translation_alone():
+    torch.manual_seed(8)
+    x0, pred = torch.randn(2, 6, 151), torch.randn(2, 6, 151)
+    root = slice(4, 7)  # after the 4 contact channels
+    expected = (((pred[:, 1:, root] - pred[:, :-1, root]) - (x0[:, 1:, root] - x0[:, :-1, root])) ** 2).mean()
+    terms = dance_loss(pred, x0, None, only("root"))
+    assert torch.allclose(terms["root"], expected, atol=1e-7)
+    assert torch.allclose(terms["loss"], expected, atol=1e-7)
+    moved = pred.clone()
+    moved[..., 7:] += torch.randn(2, 6, 144)  # the rotations do not enter it
+    assert torch.allclose(dance_loss(moved, x0, None, only("root"))["root"], expected, atol=1e-7)
+    assert "root" not in dance_loss(pred, x0, None, only("velocity"))  # off (weight 0): not computed
