@@ -517,19 +517,20 @@ class DanceDataModule(L.LightningDataModule):
             self._sequences[split] = self.load_split(split)
         return self._sequences[split]
 
+    def reading_options(self) -> dict[str, Any]:
+        """The settings every layout's reader takes from this datamodule (cache, music features, genres, limits)."""
+        return {
+            "cache_dir": self.cache_dir,
+            "audio_encoder": self.audio_encoder,
+            "waveform_sample_rate": self.waveform_sample_rate,
+            "vocab": self.vocab,
+            "max_sequences": self.max_sequences,
+            "progress": self.progress,
+        }
+
     def load_split(self, split: str) -> list[Sequence]:
         """The processed sequences of one split of this dataset (subclasses read other layouts)."""
-        return load_sequences(
-            self.root,
-            split,
-            fps=self.fps,
-            cache_dir=self.cache_dir,
-            audio_encoder=self.audio_encoder,
-            waveform_sample_rate=self.waveform_sample_rate,
-            vocab=self.vocab,
-            max_sequences=self.max_sequences,
-            progress=self.progress,
-        )
+        return load_sequences(self.root, split, fps=self.fps, **self.reading_options())
 
     def setup(self, stage: str | None = None) -> None:
         train = self.sequences("train")

@@ -440,14 +440,5 @@ class FineDanceDataModule(DanceDataModule):
 
     def load_split(self, split: str) -> list[Sequence]:
         return load_finedance_sequences(
-            self.root,
-            split,
-            skeleton=self.skeleton,
-            scheme=self.scheme,
-            cache_dir=self.cache_dir,
-            audio_encoder=self.audio_encoder,
-            waveform_sample_rate=self.waveform_sample_rate,
-            vocab=self.vocab,
-            max_sequences=self.max_sequences,
-            progress=self.progress,
+            self.root, split, skeleton=self.skeleton, scheme=self.scheme, **self.reading_options()
         )
