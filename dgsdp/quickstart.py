@@ -7,6 +7,8 @@
 4. prints where everything is, how long each stage took, and the generate.py command for your own songs.
 
 Extra arguments are Hydra overrides for the training run, e.g. ``python -m dgsdp.quickstart trainer.max_steps=50``.
+``experiment=<row>`` trains another recipe in place of row 9: ``python -m dgsdp.quickstart experiment=quickstart_row10``
+is the style recipe (4000 steps, about 20 minutes on 2 CPU cores; docs/style.md).
 """
 
 from __future__ import annotations
@@ -51,6 +53,22 @@ FREE_TEXT_STYLE = "sharp, powerful krump with heavy chest pops and arm swings"
 #   seed 0).
 QUICKSTART_EXPERIMENT = "quickstart_row9"
 QUICKSTART_TRAINING = (f"experiment={QUICKSTART_EXPERIMENT}",)  # its steps, 1000, are the recipe's
+STYLE_EXPERIMENT = "quickstart_row10"  # the style recipe: row 9 + loss.root=10, 4000 steps (docs/style.md)
+
+
+def training_experiment(overrides: list[str]) -> str:
+    """The experiment the training run uses: the last ``experiment=`` of the overrides, else row 9's recipe."""
+    named = [o.split("=", 1)[1] for o in overrides if o.lstrip("+").startswith("experiment=")]
+    return named[-1] if named else QUICKSTART_EXPERIMENT
+
+
+def training_overrides(overrides: list[str]) -> list[str]:
+    """The training run's overrides: row 9's recipe unless the user names an experiment of their own."""
+    if any(o.lstrip("+").startswith("experiment=") for o in overrides):
+        return list(overrides)
+    return [*QUICKSTART_TRAINING, *overrides]
+
+
 NEXT_HINT = (
     "      add sampling.guidance.music=<w> to choose how strongly the dance follows the music (classifier-free\n"
     "      guidance; default 2: 1 = plain conditional sampling, higher = more music-driven and more energetic,\n"
@@ -71,10 +89,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         from dgsdp.cli.train import train
 
-        cfg = compose_config("train", [*QUICKSTART_TRAINING, *overrides], output_dir=out / "train")
+        experiment = training_experiment(overrides)
+        cfg = compose_config("train", training_overrides(overrides), output_dir=out / "train")
         print(
             f"[1/2] training the small model for {cfg.trainer.max_steps} steps on the synthetic dataset "
-            f"({cfg.data.root}; made first if missing); run folder {out / 'train'}",
+            f"({cfg.data.root}; made first if missing) with experiment={experiment}; run folder {out / 'train'}",
             flush=True,
         )
         result = train(cfg)
@@ -116,7 +135,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"next: dgsdp-generate checkpoint={checkpoint} music=<your song> style=<genre or description>")
     print("      (the same as python generate.py ... from a checkout)")
     print(NEXT_HINT)
-    print(f"faster: dgsdp-train experiment={QUICKSTART_EXPERIMENT} distill.teacher={checkpoint}\n"
+    if experiment == QUICKSTART_EXPERIMENT:
+        print(f"style:  python -m dgsdp.quickstart experiment={STYLE_EXPERIMENT} (about 20 minutes) trains the recipe\n"
+              "      whose dances show the asked genre far more often (docs/style.md)")  # fmt: skip
+    print(f"faster: dgsdp-train experiment={experiment} distill.teacher={checkpoint}\n"
           "      (from this folder, about 10 minutes) makes a student that samples in one pass per step: use it with\n"
           "      sampling.steps=5, 3-4x faster than this model's default (docs/distillation.md)")  # fmt: skip
     return 1 if failed else 0

@@ -250,6 +250,11 @@ class StyleBenchmark:
             "checkpoint": self.checkpoint,
             "data_root": str(self.data_root),
             "sampling": dataclasses.asdict(self.job.sampling),
+            # how free text was read (generate.py's style_text_temperature and style_text_descriptions)
+            "text_reading": {
+                "temperature": self.job.settings.style_text_temperature,
+                "descriptions": self.job.settings.style_text_descriptions,
+            },
             "genres": list(self.vocab.codes),
             "n_clips": len(clips),
             "gt_acc": accuracy(genres, gt),

@@ -103,6 +103,9 @@ def generate_settings(cfg: DictConfig) -> GenerateSettings:
         seconds=None if cfg.seconds is None else float(cfg.seconds),
         blend_seconds=float(cfg.schedule_blend_seconds),
         style_text_temperature=None if cfg.get("style_text_temperature") is None else float(cfg.style_text_temperature),
+        style_text_descriptions=None
+        if cfg.get("style_text_descriptions") is None
+        else str(cfg.style_text_descriptions),
         num_samples=int(cfg.num_samples),
         seed=int(cfg.seed),
         progress=bool(cfg.progress),

@@ -31,6 +31,7 @@ from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styl
 from dgsdp.motion import FloorCleanup, Skeleton, clean_motion
 from dgsdp.resources import home
 from dgsdp.sampling import SamplingSettings
+from dgsdp.style.embeddings import load_prompts, resolve_prompts_file
 from dgsdp.trained import TrainedModel, load_model
 from dgsdp.utils.device import check_cpu_bf16, resolve_device
 
@@ -89,13 +90,17 @@ class StylePlan:
     spans: list[Any] | None = None
 
 
-def read_through_bank(vector: torch.Tensor, bank: torch.Tensor, temperature: float) -> torch.Tensor:
-    """A free-text style vector (ds,) read through the training descriptions it resembles: the mean of the bank's
-    rows (P, ds) weighted by the softmax of their cosine similarity to it over ``temperature``. A model has only
-    learnt what its training descriptions' embeddings ask for; text unlike any of them lies where it has learnt
-    nothing, and this keeps it among them (small temperature: the nearest description)."""
+def read_through_bank(
+    vector: torch.Tensor, bank: torch.Tensor, temperature: float, values: torch.Tensor | None = None
+) -> torch.Tensor:
+    """A free-text style vector (ds,) read through the descriptions it resembles: the mean of ``values`` (P, ds;
+    default the descriptions' own embeddings ``bank``) weighted by the softmax of the cosine similarity of each
+    description (``bank``, P x ds) to it over ``temperature``. A model has only learnt what its training descriptions'
+    embeddings ask for; text unlike any of them lies where it has learnt nothing, and this keeps it among them (small
+    temperature: the nearest description). With other descriptions than the model's own, ``values`` are the model's
+    mean style of each description's genre, so the text asks for a blend of the genres it reads as."""
     sims = torch.nn.functional.cosine_similarity(bank, vector[None, :], dim=-1)  # (P,)
-    return torch.softmax(sims / temperature, dim=0) @ bank
+    return torch.softmax(sims / temperature, dim=0) @ (bank if values is None else values)
 
 
 class DanceGenerator:
@@ -113,6 +118,7 @@ class DanceGenerator:
         max_song_seconds: float | None = None,
         trusted: bool = False,
         text_temperature: float | None = None,
+        text_descriptions: str | os.PathLike | None = None,
     ) -> None:
         self.model = model.to(device).eval()
         self.device = torch.device(device)
@@ -131,6 +137,14 @@ class DanceGenerator:
             raise ConfigError(f"style_text_temperature must be a positive number or null, got {text_temperature}")
         # free text read through the training descriptions it resembles (see embed_style); None: its own embedding
         self.text_temperature = None if text_temperature is None else float(text_temperature)
+        # ...or through these descriptions (a prompts file or a shipped one's name), blending the model's genres
+        if text_descriptions is not None and self.text_temperature is None:
+            raise ConfigError(
+                "style_text_descriptions reads free text through descriptions by similarity: set style_text_temperature "
+                "too (0.1 measured best, docs/style.md)"
+            )
+        self.text_descriptions = text_descriptions
+        self._reading: tuple[torch.Tensor, torch.Tensor] | None = None
 
     @classmethod
     def from_checkpoint(
@@ -141,6 +155,7 @@ class DanceGenerator:
         device: str = "cpu",
         max_song_seconds: float | None = None,
         text_temperature: float | None = None,
+        text_descriptions: str | os.PathLike | None = None,
     ) -> DanceGenerator:
         """The model of a checkpoint written by train.py (or the EDGE import), read as data. ``cache_dir``: where
         music features are cached (default: ``data/cache`` of the working folder, as the command-line tools)."""
@@ -152,6 +167,7 @@ class DanceGenerator:
             device=resolve_device(device),
             max_song_seconds=max_song_seconds,
             text_temperature=text_temperature,
+            text_descriptions=text_descriptions,
         )
 
     @property
@@ -291,8 +307,20 @@ class DanceGenerator:
             return bank.mean_for(torch.tensor([embedder.vocab.index(text)], device=bank.vectors.device))[0].cpu()
         vector = embedder.embed_text(text).float().cpu()
         if self.text_temperature is not None and bank is not None and len(bank) > 1 and embedder.kind == "prompt":
-            vector = read_through_bank(vector, bank.vectors.float().cpu(), self.text_temperature)
+            keys, values = self._text_reading(embedder, bank)
+            vector = read_through_bank(vector, keys, self.text_temperature, values)
         return vector
+
+    def _text_reading(self, embedder: Any, bank: Any) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The descriptions free text is read through (P, ds) and what each stands for (None: itself)."""
+        if self.text_descriptions is None:
+            return bank.vectors.float().cpu(), None
+        if self._reading is None:
+            per_genre = load_prompts(resolve_prompts_file(self.text_descriptions), embedder.vocab)
+            keys = embedder.embed_texts([t for texts in per_genre for t in texts]).float().cpu()
+            genres = torch.tensor([g for g, texts in enumerate(per_genre) for _ in texts], device=bank.vectors.device)
+            self._reading = (keys, bank.mean_for(genres).float().cpu())
+        return self._reading
 
     def resolve_style(self, style: str | None) -> StylePlan:
         """Check and embed a style string once (before any song): genre, free text or schedule."""

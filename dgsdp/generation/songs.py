@@ -66,6 +66,7 @@ class GenerateSettings:
     seconds: float | None = None
     blend_seconds: float = 2.0
     style_text_temperature: float | None = None
+    style_text_descriptions: str | None = None
     num_samples: int = 1
     seed: int = 0
     progress: bool = False
@@ -96,6 +97,7 @@ class SongDancer:
         generator = DanceGenerator.from_checkpoint(
             settings.checkpoint, cache_dir=settings.cache_dir, device=settings.device,
             max_song_seconds=settings.max_song_seconds, text_temperature=settings.style_text_temperature,
+            text_descriptions=settings.style_text_descriptions,
         )  # fmt: skip
         edit = settings.edit
         if edit.motion is None and edit.motion_file:  # read once, before any song (one clear error for a bad file)

@@ -31,6 +31,21 @@ DATASET_PROMPTS_FILES = {"aistpp": STYLE_PROMPTS_FILE, "finedance": FINEDANCE_PR
 """The shipped description prompts of each named vocabulary (:data:`dgsdp.style.vocab.DATASET_VOCABS`)."""
 
 
+SHIPPED_PROMPTS_DIR = STYLE_PROMPTS_FILE.parent
+"""The shipped prompt files; ``style.prompts_file`` may name one by its stem (``aistpp_augmented``)."""
+
+
+def resolve_prompts_file(prompts_file: str | os.PathLike) -> Path:
+    """A prompts file given as a path, or as the name of a shipped one (``dgsdp/resources/style_prompts/<name>.yaml``)
+    when no such path exists: ``style.prompts_file=aistpp_augmented`` works from any folder and in checkpoints."""
+    path = Path(prompts_file)
+    if not path.exists() and path.parent == Path("."):
+        shipped = SHIPPED_PROMPTS_DIR / (path.name if path.suffix == ".yaml" else f"{path.name}.yaml")
+        if shipped.is_file():
+            return shipped
+    return path
+
+
 def default_prompts_file(vocab: GenreVocab) -> Path:
     """The shipped prompts of a dataset's vocabulary (FineDance's for FineDance's genres), else AIST++'s."""
     for name, path in DATASET_PROMPTS_FILES.items():
@@ -126,7 +141,11 @@ def load_prompts(path: str | os.PathLike, vocab: GenreVocab = AISTPP_GENRES) -> 
     """Read a prompts yaml (``genre: [text, ...]``) -> one list of texts per genre, in vocabulary order."""
     path = Path(path)
     if not path.is_file():
-        raise DataError(f"Style prompts file {path} does not exist; point style.prompts_file at a yaml file.")
+        shipped = ", ".join(sorted(p.stem for p in SHIPPED_PROMPTS_DIR.glob("*.yaml")))
+        raise DataError(
+            f"Style prompts file {path} does not exist; point style.prompts_file at a yaml file, or name a shipped "
+            f"one ({shipped})."
+        )
     with open(path, encoding="utf-8") as f:
         data = yaml.safe_load(f)
     if not isinstance(data, Mapping):
@@ -170,7 +189,9 @@ class StyleEmbedder:
             raise ConfigError(f"Unknown style kind {kind!r}; use one of {', '.join(STYLE_KINDS)}.")
         self.kind = kind
         self.vocab = _as_vocab(vocab)
-        self.prompts_file = Path(prompts_file) if prompts_file is not None else default_prompts_file(self.vocab)
+        self.prompts_file = (
+            resolve_prompts_file(prompts_file) if prompts_file is not None else default_prompts_file(self.vocab)
+        )
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
         if kind in ("genre", "prompt") and text_encoder is None:
             raise ConfigError(f"style kind {kind!r} needs a text encoder; set text_encoder (e.g. text_encoder=minilm).")
@@ -283,6 +304,12 @@ class StyleEmbedder:
         if text not in self._text_memo:
             self._text_memo[text] = self._encode_cached([text])[0]
         return self._text_memo[text]
+
+    def embed_texts(self, texts: list[str]) -> torch.Tensor:
+        """``(N, dim)`` embeddings of several descriptions at once (one disk-cache entry); loads the encoder if needed."""
+        if self.kind not in ("genre", "prompt"):
+            raise ConfigError(f"style kind {self.kind!r} embeds no text.")
+        return self._encode_cached([" ".join(t.split()) for t in texts])
 
     def embed(self, style: str) -> torch.Tensor:
         """``(dim,)`` for a user's style string: a known genre code/name, otherwise a free-text description."""

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 import yaml
 
 from dgsdp.benchmarks import style as sb
@@ -46,7 +47,10 @@ def test_switch_frames_by_hand(labels, frames):
 
 def test_heldout_descriptions_are_apart_from_training():
     heldout = load_prompts(sb.HELDOUT_FILE, AISTPP_GENRES)
-    training = load_prompts(STYLE_PROMPTS_FILE, AISTPP_GENRES)
+    # every shipped AIST++ training file: the prompts and their augmented set (quickstart_row11)
+    files = sorted(STYLE_PROMPTS_FILE.parent.glob("aistpp*.yaml"))
+    assert [f.stem for f in files] == ["aistpp", "aistpp_augmented"]
+    training = [texts for f in files for texts in load_prompts(f, AISTPP_GENRES)]
     assert sb.HELDOUT_FILE.parent != STYLE_PROMPTS_FILE.parent  # nothing that trains reads this folder
     assert all(len(texts) >= 4 for texts in heldout)
     training_text = " ".join(t.lower() for texts in training for t in texts)
@@ -108,6 +112,7 @@ def test_benchmark_end_to_end(prompt_checkpoint, capsys):
     data = json.loads((out / "style.json").read_text())[0]
     assert (out / "confusion.png").stat().st_size > 1000
     assert data["n_clips"] == 10
+    assert data["text_reading"] == {"temperature": None, "descriptions": None}  # the text's own embedding
     for name in ("raw", "finished"):
         figures = data[name]
         matrix = np.asarray(figures["confusion"])
@@ -138,3 +143,31 @@ def test_benchmark_refuses_a_model_without_style(tmp_path, capsys):
     code = sb.main(["--checkpoint", checkpoint, "--no-progress", "device=cpu", f"paths.cache_dir={tmp_path / 'c'}"])
     assert code == 2
     assert "trained without style" in capsys.readouterr().err
+
+
+def test_free_text_read_through_other_descriptions_asks_for_their_genres(prompt_checkpoint):
+    """style_text_descriptions: text read through the augmented descriptions becomes a blend of the model's genre
+    means, weighted by the genres of the descriptions it resembles (one description: exactly its genre's mean)."""
+    from dgsdp.errors import ConfigError
+    from dgsdp.generation.pipeline import DanceGenerator
+    from dgsdp.style.embeddings import load_prompts, resolve_prompts_file
+
+    run = prompt_checkpoint
+    kr_text = load_prompts(resolve_prompts_file("aistpp_augmented"))[AISTPP_GENRES.index("KR")][-1]
+    gen = DanceGenerator.from_checkpoint(
+        run["checkpoint"], cache_dir=run["cache"], text_temperature=1e-4, text_descriptions="aistpp_augmented"
+    )
+    bank = gen.model.style_bank
+    kr_mean = bank.mean_for(torch.tensor([AISTPP_GENRES.index("KR")], device=bank.vectors.device))[0].cpu()
+    assert torch.allclose(gen.embed_style(kr_text), kr_mean, atol=1e-5)
+    # at a large temperature every description weighs the same, and every genre has 20: the mean of the genre means
+    flat = DanceGenerator.from_checkpoint(
+        run["checkpoint"], cache_dir=run["cache"], text_temperature=1e4, text_descriptions="aistpp_augmented"
+    )
+    all_means = bank.mean_for(torch.arange(10, device=bank.vectors.device)).cpu()
+    assert torch.allclose(flat.embed_style("anything at all, moving"), all_means.mean(0), atol=1e-4)
+    # the model's own descriptions (the default) keep their own embeddings, not the genre means
+    own = DanceGenerator.from_checkpoint(run["checkpoint"], cache_dir=run["cache"], text_temperature=1e-4)
+    assert not torch.allclose(own.embed_style(kr_text), kr_mean, atol=1e-3)
+    with pytest.raises(ConfigError, match="style_text_temperature"):
+        DanceGenerator.from_checkpoint(run["checkpoint"], cache_dir=run["cache"], text_descriptions="aistpp_augmented")

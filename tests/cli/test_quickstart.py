@@ -18,3 +18,11 @@ def test_quickstart_runs_end_to_end_and_prints_its_stages(tmp_path, monkeypatch,
     assert f"dgsdp-train experiment={quickstart.QUICKSTART_EXPERIMENT} distill.teacher=" in out  # a faster student
     dances = sorted(p.relative_to(tmp_path) for p in tmp_path.glob("outputs/quickstart/*/dances/*/*.npy"))
     assert [p.parent.name for p in dances] == ["free_text", "genre"]
+
+
+def test_quickstart_trains_row_9_unless_an_experiment_is_named():
+    assert quickstart.training_overrides(["seed=1"]) == ["experiment=quickstart_row9", "seed=1"]
+    assert quickstart.training_experiment(["seed=1"]) == "quickstart_row9"
+    ours = ["experiment=quickstart_row10", "seed=2"]
+    assert quickstart.training_overrides(ours) == ours  # one experiment, never two
+    assert quickstart.training_experiment(ours) == quickstart.STYLE_EXPERIMENT == "quickstart_row10"

@@ -45,3 +45,31 @@ def test_prompts_file_errors(tmp_path) -> None:
 
     with pytest.raises(DataError, match="does not exist"):
         load_prompts(tmp_path / "nope.yaml", vocab)
+
+
+def test_augmented_prompts_keep_the_shipped_ones_first_and_add_short_distinct_ones() -> None:
+    from dgsdp.style.embeddings import resolve_prompts_file
+
+    path = resolve_prompts_file("aistpp_augmented")
+    assert path == DEFAULT_PROMPTS_FILE.parent / "aistpp_augmented.yaml"
+    shipped, augmented = load_prompts(DEFAULT_PROMPTS_FILE), load_prompts(path)
+    all_texts = [t for texts in augmented for t in texts]
+    assert len(set(all_texts)) == len(all_texts)
+    for code, ours, theirs in zip(AISTPP_GENRES.codes, shipped, augmented):
+        assert theirs[: len(ours)] == ours, code
+        short = theirs[len(ours) :]
+        assert len(short) == 16 and all(6 <= len(t.split()) <= 20 for t in short), code
+
+
+def test_prompts_file_by_shipped_name_path_or_clear_error(tmp_path, monkeypatch) -> None:
+    from dgsdp.style.embeddings import StyleEmbedder, resolve_prompts_file
+
+    monkeypatch.chdir(tmp_path)  # a name resolves from any folder
+    assert resolve_prompts_file("aistpp_augmented.yaml") == resolve_prompts_file("aistpp_augmented")
+    own = tmp_path / "aistpp_augmented.yaml"  # a file of the user's own with that name wins
+    own.write_text(yaml.safe_dump({code: ["one text"] for code in AISTPP_GENRES.codes}))
+    assert resolve_prompts_file("aistpp_augmented.yaml") == own.relative_to(tmp_path)
+    with pytest.raises(DataError, match="aistpp_augmented"):  # the error lists the shipped names
+        load_prompts(resolve_prompts_file("no_such_prompts"))
+    embedder = StyleEmbedder(kind="onehot", prompts_file="finedance")
+    assert embedder.prompts_file == DEFAULT_PROMPTS_FILE.parent / "finedance.yaml"
