@@ -56,17 +56,19 @@ QUICKSTART_TRAINING = (f"experiment={QUICKSTART_EXPERIMENT}",)  # its steps, 100
 STYLE_EXPERIMENT = "quickstart_row10"  # the style recipe: row 9 + loss.root=10, 4000 steps (docs/style.md)
 
 
+def _named_experiments(overrides: list[str]) -> list[str]:
+    return [o.split("=", 1)[1] for o in overrides if o.lstrip("+").startswith("experiment=")]
+
+
 def training_experiment(overrides: list[str]) -> str:
     """The experiment the training run uses: the last ``experiment=`` of the overrides, else row 9's recipe."""
-    named = [o.split("=", 1)[1] for o in overrides if o.lstrip("+").startswith("experiment=")]
+    named = _named_experiments(overrides)
     return named[-1] if named else QUICKSTART_EXPERIMENT
 
 
 def training_overrides(overrides: list[str]) -> list[str]:
     """The training run's overrides: row 9's recipe unless the user names an experiment of their own."""
-    if any(o.lstrip("+").startswith("experiment=") for o in overrides):
-        return list(overrides)
-    return [*QUICKSTART_TRAINING, *overrides]
+    return list(overrides) if _named_experiments(overrides) else [*QUICKSTART_TRAINING, *overrides]
 
 
 NEXT_HINT = (

@@ -141,7 +141,7 @@ class DanceGenerator:
         if text_descriptions is not None and self.text_temperature is None:
             raise ConfigError(
                 "style_text_descriptions reads free text through descriptions by similarity: set style_text_temperature "
-                "too (0.1 measured best, docs/style.md)"
+                "too (0.02 measured best with aistpp_augmented, docs/style.md)"
             )
         self.text_descriptions = text_descriptions
         self._reading: tuple[torch.Tensor, torch.Tensor] | None = None
