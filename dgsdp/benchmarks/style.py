@@ -10,6 +10,8 @@ features of 5 s windows, fitted on the training split's dances):
   target is within 30%);
 - **free text**: the same clips asked with descriptions that are *not* in the training prompts (the held-out list
   ``dgsdp/resources/style_heldout/aistpp.yaml``, which nothing trains on), classified as the genre they describe;
+  ``--heldout aistpp_second`` takes a second list, written after generate.py's text-reading temperature was chosen
+  on the first;
 - **a style schedule**: two genres, 10 s each, on held-out songs; the accuracy of each span's 5 s windows (away
   from the 2 s blend) and how many frames the switch takes (2 s windows classified every 5 frames);
 - **real songs** (``--songs DIR``, a folder of songs, e.g. one made by ``python -m dgsdp.benchmarks.realsongs
@@ -42,7 +44,8 @@ from dgsdp.errors import ConfigError, DgsdpError
 from dgsdp.motion import SMPL24, Skeleton
 from dgsdp.resources import RESOURCES_DIR
 
-HELDOUT_FILE = RESOURCES_DIR / "style_heldout" / "aistpp.yaml"
+HELDOUT_DIR = RESOURCES_DIR / "style_heldout"
+HELDOUT_FILE = HELDOUT_DIR / "aistpp.yaml"
 """Held-out free-text descriptions, kept apart from the training prompts (``resources/style_prompts/``)."""
 SPEED_TOLERANCE = 0.30
 CLIP_SECONDS = 5.0
@@ -150,6 +153,20 @@ def _to_joints(motions: Sequence[torch.Tensor], skeleton: Skeleton = SMPL24) -> 
     return [motion_to_joints(m[0].numpy() if m.ndim == 3 else m.numpy(), skeleton) for m in motions]
 
 
+def resolve_heldout(heldout: str | None) -> Path:
+    """The held-out descriptions file: ``None`` (the first list, ``style_heldout/aistpp.yaml``), a shipped list's name
+    in ``dgsdp/resources/style_heldout/`` or a yaml path."""
+    from dgsdp.style.embeddings import resolve_prompts_file
+
+    if heldout is None:
+        return HELDOUT_FILE
+    path = resolve_prompts_file(heldout, shipped_dir=HELDOUT_DIR)
+    if not path.is_file():
+        shipped = ", ".join(sorted(p.stem for p in HELDOUT_DIR.glob("aistpp*.yaml")))
+        raise ConfigError(f"--heldout {heldout}: no such file; give a yaml path or a shipped list's name ({shipped})")
+    return path
+
+
 class StyleBenchmark:
     """Measures one checkpoint. ``overrides``: generate.py settings (e.g. ``sampling=edge``,
     ``sampling.guidance.music=2.5``); the finished dances use its finishing settings."""
@@ -163,6 +180,7 @@ class StyleBenchmark:
         max_clips: int | None = None,
         raw_only: bool = False,
         progress: bool = True,
+        heldout: str | None = None,
     ) -> None:
         from dgsdp.cli.config import compose_config
         from dgsdp.cli.generate import generate_settings
@@ -180,6 +198,7 @@ class StyleBenchmark:
             raise ConfigError(f"--max-clips must be at least 2, got {max_clips}")
         self.max_clips = max_clips
         self.raw_only = bool(raw_only)  # quick screening: the finished clips are not made
+        self.heldout_file = resolve_heldout(heldout)
         self.progress = progress
         self.vocab = self.generator.embedder().vocab
         self.fps = self.generator.fps
@@ -252,9 +271,10 @@ class StyleBenchmark:
             "sampling": dataclasses.asdict(self.job.sampling),
             # how free text was read (generate.py's style_text_temperature and style_text_descriptions)
             "text_reading": {
-                "temperature": self.job.settings.style_text_temperature,
-                "descriptions": self.job.settings.style_text_descriptions,
+                "temperature": self.generator.text_temperature,
+                "descriptions": self.generator.text_descriptions,
             },
+            "heldout_descriptions": self.heldout_file.name,
             "genres": list(self.vocab.codes),
             "n_clips": len(clips),
             "gt_acc": accuracy(genres, gt),
@@ -329,7 +349,7 @@ class StyleBenchmark:
     def _heldout_texts(self) -> list[list[str]]:
         from dgsdp.style.embeddings import load_prompts
 
-        return load_prompts(HELDOUT_FILE, self.vocab)
+        return load_prompts(self.heldout_file, self.vocab)
 
     def _schedules(self, test: list[Any], judge: Judge) -> dict[str, Any]:
         """Each of the first half of the genres followed by the genre half the vocabulary away, 10 s each, on the
@@ -464,7 +484,7 @@ def report_lines(result: dict[str, Any]) -> list[str]:
         f"guidance music={result['sampling']['guidance']['music']:g} style={result['sampling']['guidance']['style']:g}",
         f"{'':28s}{'raw':>8s}{'finished':>10s}",
         f"{'genre accuracy':28s}{both('genre_acc')}   (ground truth {_pct(result['gt_acc'])})",
-        f"{'free text (held out)':28s}{both('text_acc')}",
+        f"{'free text (held out)':28s}{both('text_acc')}   ({result.get('heldout_descriptions', HELDOUT_FILE.name)})",
         f"{'  naming the genre':28s}{both('text_acc_named')}",
         f"{'  movement only':28s}{both('text_acc_unnamed')}",
         f"{'genres within 30% of speed':28s}{count(raw):>8s}{count(fin):>10s}",
@@ -563,6 +583,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--song-seconds", type=float, default=10.0, help="seconds of each real song (default 10)")
     parser.add_argument("--max-clips", type=int, default=None, help="at most this many held-out clips (balanced)")
     parser.add_argument("--raw-only", action="store_true", help="quick screening: skip the finished clips")
+    parser.add_argument(
+        "--heldout", default=None,
+        help="the held-out descriptions: a shipped list's name (aistpp, the default; aistpp_second) or a yaml path",
+    )  # fmt: skip
     parser.add_argument("--json", default=None, help="write every figure to this JSON file")
     parser.add_argument("--png", default=None, help="write the confusion matrices to this png")
     parser.add_argument("--no-progress", action="store_true")
@@ -578,7 +602,7 @@ def main(argv: list[str] | None = None) -> int:
         for checkpoint in args.checkpoint:
             bench = StyleBenchmark(
                 checkpoint, args.overrides, data_root=args.data_root, max_clips=args.max_clips,
-                raw_only=args.raw_only, progress=not args.no_progress,
+                raw_only=args.raw_only, progress=not args.no_progress, heldout=args.heldout,
             )  # fmt: skip
             result = bench.run(songs, args.song_seconds)
             print("\n".join(report_lines(result)), flush=True)

@@ -11,8 +11,9 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
+import math
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,7 +32,7 @@ from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styl
 from dgsdp.motion import FloorCleanup, Skeleton, clean_motion
 from dgsdp.resources import home
 from dgsdp.sampling import SamplingSettings
-from dgsdp.style.embeddings import load_prompts, resolve_prompts_file
+from dgsdp.style.embeddings import SHIPPED_PROMPTS_DIR, load_prompts, resolve_prompts_file
 from dgsdp.trained import TrainedModel, load_model
 from dgsdp.utils.device import check_cpu_bf16, resolve_device
 
@@ -103,6 +104,37 @@ def read_through_bank(
     return torch.softmax(sims / temperature, dim=0) @ (bank if values is None else values)
 
 
+TEXT_READING_OFF = "off"  # style_text_temperature=off: free text by its own embedding, whatever the run chose
+
+
+def recorded_text_reading(record: Mapping[str, Any] | None) -> tuple[float | None, str | None]:
+    """How a run chose to read free text (its config's ``generation.style_text_temperature`` and
+    ``generation.style_text_descriptions``; the style recipe sets them), as data: a positive number and the name of a
+    *shipped* descriptions file, or (None, None) where the run chose nothing (older checkpoints, the papers' rows)."""
+    chosen = (record or {}).get("generation") or {}
+    temperature, descriptions = chosen.get("style_text_temperature"), chosen.get("style_text_descriptions")
+    if temperature is None:
+        return None, None
+    try:
+        temperature = float(temperature)
+    except (TypeError, ValueError):
+        temperature = math.nan
+    if not temperature > 0:
+        raise ConfigError(
+            f"the checkpoint's generation.style_text_temperature is {chosen.get('style_text_temperature')!r}, not a "
+            "positive number; give style_text_temperature=<number> or off"
+        )
+    if descriptions is not None:
+        shipped = resolve_prompts_file(str(descriptions))
+        if shipped.parent != SHIPPED_PROMPTS_DIR or Path(str(descriptions)).parent != Path("."):
+            raise ConfigError(
+                f"the checkpoint names the descriptions {descriptions!r} to read free text through, which is not a "
+                "shipped file's name; give style_text_descriptions=<your file> or style_text_temperature=off"
+            )
+        descriptions = shipped.stem
+    return temperature, descriptions
+
+
 class DanceGenerator:
     """A trained model with its audio encoder and style embedder, ready to dance to whole songs.
 
@@ -117,7 +149,7 @@ class DanceGenerator:
         device: torch.device | str = "cpu",
         max_song_seconds: float | None = None,
         trusted: bool = False,
-        text_temperature: float | None = None,
+        text_temperature: float | str | None = None,
         text_descriptions: str | os.PathLike | None = None,
     ) -> None:
         self.model = model.to(device).eval()
@@ -133,8 +165,12 @@ class DanceGenerator:
         self._audio: AudioEncoder | None = None
         self._embedder: Any = None
         self._warned_tempo = False
+        if text_temperature is None and text_descriptions is None:  # what the run chose (the style recipe reads)
+            text_temperature, text_descriptions = recorded_text_reading(self.spec.record)
+        elif text_temperature == TEXT_READING_OFF:
+            text_temperature = None
         if text_temperature is not None and not float(text_temperature) > 0:
-            raise ConfigError(f"style_text_temperature must be a positive number or null, got {text_temperature}")
+            raise ConfigError(f"style_text_temperature must be a positive number, off or null, got {text_temperature}")
         # free text read through the training descriptions it resembles (see embed_style); None: its own embedding
         self.text_temperature = None if text_temperature is None else float(text_temperature)
         # ...or through these descriptions (a prompts file or a shipped one's name), blending the model's genres
@@ -154,7 +190,7 @@ class DanceGenerator:
         cache_dir: str | os.PathLike | None = None,
         device: str = "cpu",
         max_song_seconds: float | None = None,
-        text_temperature: float | None = None,
+        text_temperature: float | str | None = None,
         text_descriptions: str | os.PathLike | None = None,
     ) -> DanceGenerator:
         """The model of a checkpoint written by train.py (or the EDGE import), read as data. ``cache_dir``: where

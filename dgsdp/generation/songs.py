@@ -65,7 +65,7 @@ class GenerateSettings:
     finishing: Finishing = field(default_factory=Finishing)
     seconds: float | None = None
     blend_seconds: float = 2.0
-    style_text_temperature: float | None = None
+    style_text_temperature: float | str | None = None  # None: the checkpoint's choice; "off": the text's own
     style_text_descriptions: str | None = None
     num_samples: int = 1
     seed: int = 0

@@ -35,12 +35,13 @@ SHIPPED_PROMPTS_DIR = STYLE_PROMPTS_FILE.parent
 """The shipped prompt files; ``style.prompts_file`` may name one by its stem (``aistpp_augmented``)."""
 
 
-def resolve_prompts_file(prompts_file: str | os.PathLike) -> Path:
-    """A prompts file given as a path, or as the name of a shipped one (``dgsdp/resources/style_prompts/<name>.yaml``)
-    when no such path exists: ``style.prompts_file=aistpp_augmented`` works from any folder and in checkpoints."""
+def resolve_prompts_file(prompts_file: str | os.PathLike, shipped_dir: Path = SHIPPED_PROMPTS_DIR) -> Path:
+    """A prompts file given as a path, or as the name of a shipped one (``<shipped_dir>/<name>.yaml``, by default
+    ``dgsdp/resources/style_prompts/``) when no such path exists: ``style.prompts_file=aistpp_augmented`` works from
+    any folder and in checkpoints."""
     path = Path(prompts_file)
     if not path.exists() and path.parent == Path("."):
-        shipped = SHIPPED_PROMPTS_DIR / (path.name if path.suffix == ".yaml" else f"{path.name}.yaml")
+        shipped = shipped_dir / (path.name if path.suffix == ".yaml" else f"{path.name}.yaml")
         if shipped.is_file():
             return shipped
     return path

@@ -45,8 +45,28 @@ def test_switch_frames_by_hand(labels, frames):
     assert sb.switch_frames(labels, 0, 1, grid_frames=5) == frames
 
 
-def test_heldout_descriptions_are_apart_from_training():
-    heldout = load_prompts(sb.HELDOUT_FILE, AISTPP_GENRES)
+HELDOUT_LISTS = sorted(sb.HELDOUT_DIR.glob("aistpp*.yaml"))
+
+
+def test_the_shipped_heldout_lists():
+    assert [f.stem for f in HELDOUT_LISTS] == ["aistpp", "aistpp_second"]
+    first, second = (set(t for texts in load_prompts(f, AISTPP_GENRES) for t in texts) for f in HELDOUT_LISTS)
+    assert not first & second  # the second list repeats none of the first
+
+
+def test_resolve_heldout_by_name_path_or_default(tmp_path):
+    assert sb.resolve_heldout(None) == sb.HELDOUT_FILE
+    assert sb.resolve_heldout("aistpp_second") == sb.HELDOUT_DIR / "aistpp_second.yaml"
+    own = tmp_path / "mine.yaml"
+    own.write_text("BR: [a spinning floor dance]\n")
+    assert sb.resolve_heldout(str(own)) == own
+    with pytest.raises(sb.ConfigError, match=r"--heldout nope: no such file.*aistpp, aistpp_second"):
+        sb.resolve_heldout("nope")
+
+
+@pytest.mark.parametrize("heldout_file", HELDOUT_LISTS, ids=lambda f: f.stem)
+def test_heldout_descriptions_are_apart_from_training(heldout_file):
+    heldout = load_prompts(heldout_file, AISTPP_GENRES)
     # every shipped AIST++ training file: the prompts and their augmented set (quickstart_row11)
     files = sorted(STYLE_PROMPTS_FILE.parent.glob("aistpp*.yaml"))
     assert [f.stem for f in files] == ["aistpp", "aistpp_augmented"]
@@ -59,7 +79,7 @@ def test_heldout_descriptions_are_apart_from_training():
             assert text.lower() not in training_text
     # the first two of each genre name it (the report's "naming the genre" split), the others do not
     names = {code: name.lower() for code, name in zip(AISTPP_GENRES.codes, AISTPP_GENRES.names)}
-    raw = yaml.safe_load(sb.HELDOUT_FILE.read_text())
+    raw = yaml.safe_load(heldout_file.read_text())
     stems = {"BR": ("break", "b-boy"), "PO": ("pop",), "LO": ("lock",), "MH": ("hip hop", "hip-hop"),
              "LH": ("hip hop", "hip-hop"), "HO": ("house",), "WA": ("waack",), "KR": ("krump",), "JS": ("jazz",),
              "JB": ("jazz", "ballet")}  # fmt: skip
@@ -104,7 +124,7 @@ def test_benchmark_end_to_end(prompt_checkpoint, capsys):
     out = run["base"] / "out"
     code = sb.main([
         "--checkpoint", run["checkpoint"], "--data-root", run["root"], "--max-clips", "10", "--no-progress",
-        "--json", str(out / "style.json"), "--png", str(out / "confusion.png"),
+        "--json", str(out / "style.json"), "--png", str(out / "confusion.png"), "--heldout", "aistpp_second",
         "device=cpu", "sampling.steps=2", f"paths.cache_dir={run['cache']}",
     ])  # fmt: skip
     assert code == 0
@@ -113,6 +133,8 @@ def test_benchmark_end_to_end(prompt_checkpoint, capsys):
     assert (out / "confusion.png").stat().st_size > 1000
     assert data["n_clips"] == 10
     assert data["text_reading"] == {"temperature": None, "descriptions": None}  # the text's own embedding
+    assert data["heldout_descriptions"] == "aistpp_second.yaml"
+    assert any(line.startswith("free text (held out)") and "(aistpp_second.yaml)" in line for line in printed)
     for name in ("raw", "finished"):
         figures = data[name]
         matrix = np.asarray(figures["confusion"])
@@ -171,3 +193,29 @@ def test_free_text_read_through_other_descriptions_asks_for_their_genres(prompt_
     assert not torch.allclose(own.embed_style(kr_text), kr_mean, atol=1e-3)
     with pytest.raises(ConfigError, match="style_text_temperature"):
         DanceGenerator.from_checkpoint(run["checkpoint"], cache_dir=run["cache"], text_descriptions="aistpp_augmented")
+
+
+def test_a_run_that_chose_a_reading_is_read_that_way_unless_told_otherwise(prompt_checkpoint):
+    """The style recipe records generation.style_text_temperature/descriptions: generate.py, the studio and the
+    benchmarks read free text that way by default; off or explicit settings win."""
+    from dgsdp.generation.pipeline import DanceGenerator
+    from dgsdp.trained import load_model
+
+    run = prompt_checkpoint
+    model = load_model(run["checkpoint"])
+    assert DanceGenerator(model, cache_dir=run["cache"]).text_temperature is None  # the run chose nothing
+    model.spec.record["generation"] = {"style_text_temperature": 0.02, "style_text_descriptions": "aistpp_augmented"}
+    chosen = DanceGenerator(model, cache_dir=run["cache"])
+    assert (chosen.text_temperature, chosen.text_descriptions) == (0.02, "aistpp_augmented")
+    bank = model.style_bank
+    kr = AISTPP_GENRES.index("KR")
+    kr_mean = bank.mean_for(torch.tensor([kr], device=bank.vectors.device))[0].cpu()
+    text = "heavy stomping with the chest thrust forward and the arms thrown out violently"
+    own = DanceGenerator(model, cache_dir=run["cache"], text_temperature="off")
+    assert (own.text_temperature, own.text_descriptions) == (None, None)
+    assert torch.allclose(own.embed_style(text), own.embedder().embed_text(text).float().cpu())
+    # read, the text is a blend of the model's genre means: nearer the krump mean than its own embedding is
+    read = chosen.embed_style(text)
+    assert torch.dist(read, kr_mean) < torch.dist(own.embed_style(text), kr_mean)
+    mine = DanceGenerator(model, cache_dir=run["cache"], text_temperature=0.5)
+    assert (mine.text_temperature, mine.text_descriptions) == (0.5, None)  # the model's own descriptions

@@ -13,20 +13,21 @@ from dgsdp.training import DanceDiffusion
 EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
 # the quick start's ablation (sweeps/quickstart.yaml): small model, one change per row;
 # row: (velocity loss weight, audio.rhythm_only, audio.beat_phase, steps, pause loss weight, data.tempo_augment,
-# data.synthetic.offbeats, model.aligned_music, model.dropout, loss.root, style.prompts_file)
+# data.synthetic.offbeats, model.aligned_music, model.dropout, loss.root, style.prompts_file,
+# generation.style_text_temperature: how generate.py reads free text with the row's model by default)
 QUICKSTART_ROWS = {
-    "quickstart_row0": (0.0, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None),
-    "quickstart_row1": (2.964, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None),
-    "quickstart_row2": (2.964, True, False, 500, 0.0, None, True, False, 0.1, 0.0, None),
-    "quickstart_row3": (2.964, True, True, 500, 0.0, None, True, False, 0.1, 0.0, None),
-    "quickstart_row4": (2.964, True, False, 1000, 0.0, None, True, False, 0.1, 0.0, None),
-    "quickstart_row5": (2.964, True, False, 1000, 6.0, None, True, False, 0.1, 0.0, None),
-    "quickstart_row6": (2.964, True, False, 1000, 6.0, [0.8, 1.25], True, False, 0.1, 0.0, None),
-    "quickstart_row7": (2.964, True, False, 1000, 6.0, None, False, False, 0.1, 0.0, None),
-    "quickstart_row8": (2.964, True, False, 1000, 6.0, None, True, True, 0.1, 0.0, None),
-    "quickstart_row9": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 0.0, None),
-    "quickstart_row10": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, None),
-    "quickstart_row11": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, "aistpp_augmented"),
+    "quickstart_row0": (0.0, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None),
+    "quickstart_row1": (2.964, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None),
+    "quickstart_row2": (2.964, True, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None),
+    "quickstart_row3": (2.964, True, True, 500, 0.0, None, True, False, 0.1, 0.0, None, None),
+    "quickstart_row4": (2.964, True, False, 1000, 0.0, None, True, False, 0.1, 0.0, None, None),
+    "quickstart_row5": (2.964, True, False, 1000, 6.0, None, True, False, 0.1, 0.0, None, None),
+    "quickstart_row6": (2.964, True, False, 1000, 6.0, [0.8, 1.25], True, False, 0.1, 0.0, None, None),
+    "quickstart_row7": (2.964, True, False, 1000, 6.0, None, False, False, 0.1, 0.0, None, None),
+    "quickstart_row8": (2.964, True, False, 1000, 6.0, None, True, True, 0.1, 0.0, None, None),
+    "quickstart_row9": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 0.0, None, None),
+    "quickstart_row10": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, None, 0.02),
+    "quickstart_row11": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, "aistpp_augmented", 0.02),
 }
 
 
@@ -35,7 +36,7 @@ def _row(cfg) -> tuple:
     return (
         cfg.loss.velocity, cfg.audio.rhythm_only, cfg.audio.beat_phase, cfg.trainer.max_steps, cfg.loss.pause,
         tempo if tempo is None else list(tempo), cfg.data.synthetic.offbeats, cfg.model.aligned_music,
-        cfg.model.dropout, cfg.loss.root, cfg.style.prompts_file,
+        cfg.model.dropout, cfg.loss.root, cfg.style.prompts_file, cfg.generation.style_text_temperature,
     )  # fmt: skip
 
 
@@ -85,6 +86,7 @@ def test_experiment_composes_and_builds_paper_size_model(name, tmp_path):
         assert audio.name == audio_name
         assert style.kind == kind
         assert cfg.run_name == name
+        assert cfg.generation.style_text_temperature is None  # free text by its own embedding, as the papers
         if injection is not None:
             assert spec.model["style_injection"] == injection
             assert model.denoiser.use_modulation == (injection == "modulation")
