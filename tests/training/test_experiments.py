@@ -28,6 +28,7 @@ QUICKSTART_ROWS = {
     "quickstart_row9": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 0.0, None, None),
     "quickstart_row10": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, None, 0.02),
     "quickstart_row11": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, "aistpp_augmented", 0.02),
+    "quickstart_row12": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, 0.02),
 }
 
 
