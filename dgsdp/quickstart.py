@@ -8,7 +8,7 @@
 
 Extra arguments are Hydra overrides for the training run, e.g. ``python -m dgsdp.quickstart trainer.max_steps=50``.
 ``experiment=<row>`` trains another recipe in place of row 9: ``python -m dgsdp.quickstart experiment=quickstart_row12``
-is the style recipe (6000 steps, about 30 minutes on 2 CPU cores; docs/style.md).
+is the style recipe (6000 steps, 42 minutes on 2 CPU cores; docs/style.md).
 """
 
 from __future__ import annotations
@@ -138,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     print("      (the same as python generate.py ... from a checkout)")
     print(NEXT_HINT)
     if experiment == QUICKSTART_EXPERIMENT:
-        print(f"style:  python -m dgsdp.quickstart experiment={STYLE_EXPERIMENT} (about 30 minutes) trains the recipe\n"
+        print(f"style:  python -m dgsdp.quickstart experiment={STYLE_EXPERIMENT} (about 40 minutes) trains the recipe\n"
               "      whose dances show the asked genre far more often (docs/style.md)")  # fmt: skip
     print(f"faster: dgsdp-train experiment={experiment} distill.teacher={checkpoint}\n"
           "      (from this folder, about 10 minutes) makes a student that samples in one pass per step: use it with\n"
