@@ -484,7 +484,7 @@ def report_lines(result: dict[str, Any]) -> list[str]:
         f"guidance music={result['sampling']['guidance']['music']:g} style={result['sampling']['guidance']['style']:g}",
         f"{'':28s}{'raw':>8s}{'finished':>10s}",
         f"{'genre accuracy':28s}{both('genre_acc')}   (ground truth {_pct(result['gt_acc'])})",
-        f"{'free text (held out)':28s}{both('text_acc')}   ({result.get('heldout_descriptions', HELDOUT_FILE.name)})",
+        f"{'free text (held out)':28s}{both('text_acc')}   ({result['heldout_descriptions']})",
         f"{'  naming the genre':28s}{both('text_acc_named')}",
         f"{'  movement only':28s}{both('text_acc_unnamed')}",
         f"{'genres within 30% of speed':28s}{count(raw):>8s}{count(fin):>10s}",
