@@ -97,17 +97,27 @@ def legacy_file(path: Path, main: bytes, keys: list[str], data: bytes) -> Path:
 
 
 # --- the files -----------------------------------------------------------------------------------------------------
+def deep_key_pickle(levels: int = 1_000_000) -> bytes:
+    """A pickle of a dict whose key is nested ``levels`` tuples deep (hashing it overflows the C stack)."""
+    return pickled(P.EMPTY_DICT + b_int(0) + P.TUPLE1 * levels + b_int(1) + P.SETITEM)
+
+
+def shared_pair_pickle(levels: int = 64) -> bytes:
+    """A pickle of a dict whose key is ``x = (x, x)`` ``levels`` times through the memo (2^levels hash calls)."""
+    body = P.EMPTY_DICT + b_int(0) + put(0)
+    for i in range(levels):
+        body += get(i) + P.TUPLE2 + put(i + 1)
+    return pickled(body + b_int(1) + P.SETITEM)
+
+
 def deep_key(path: Path) -> Path:
     """The issue's first file: a dict key nested 10^6 tuples deep (hashing it overflows the C stack)."""
-    return torch_zip(path, pickled(P.EMPTY_DICT + b_int(0) + P.TUPLE1 * 1_000_000 + b_int(1) + P.SETITEM))
+    return torch_zip(path, deep_key_pickle())
 
 
 def shared_pair_key(path: Path, levels: int = 64) -> Path:
     """The issue's second file: ``x = (x, x)`` 64 times through the memo, used as a key (2^64 hash calls)."""
-    body = P.EMPTY_DICT + b_int(0) + put(0)
-    for i in range(levels):
-        body += get(i) + P.TUPLE2 + put(i + 1)
-    return torch_zip(path, pickled(body + b_int(1) + P.SETITEM))
+    return torch_zip(path, shared_pair_pickle(levels))
 
 
 def broadcast_view(path: Path) -> Path:

@@ -7,7 +7,9 @@ import functools
 import os
 import pickle
 import subprocess
+import time
 
+import hostile_checkpoints as made
 import numpy as np
 import pytest
 from conftest import accepted, refused, shell_touch
@@ -127,12 +129,12 @@ def test_object_array_with_payload_is_refused(tmp_path, marker):
 
 
 def test_huge_bytes_request_is_refused(tmp_path):
-    """A 40-byte file asking for bytes(10**13) gets an error, not an out-of-memory crash."""
+    """A 40-byte file asking for bytes(10**13) gets an error from the scan, not an out-of-memory crash."""
     path = tmp_path / "bomb.pkl"
     path.write_bytes(pickle.dumps(_Gadget(bytes, 10**13), protocol=2))
     with pytest.raises(DataError) as exc:
         load_pickle(path)
-    refused(exc, str(path), "too much memory")
+    refused(exc, str(path), "asking for more than the file's", "nothing was loaded")
 
 
 # --- broken, not malicious ------------------------------------------------------------------------------------
@@ -204,3 +206,167 @@ def test_edit_motion_wrong_shapes_and_types(tmp_path, value, fragment):
     with pytest.raises(DataError) as exc:
         load_motion_file(path)
     refused(exc, str(path), fragment)
+
+
+# --- files that crash or hang a plain restricted unpickler: the bounded scan (docs/security.md) ------------------
+def _object_array(shape_items: int, list_items: int) -> bytes:
+    """numpy's own pickle of an object array, its shape changed to ``shape_items`` while its list keeps
+    ``list_items`` (numpy reads ``shape_items`` items from the list, unchecked)."""
+    arr = np.empty(list_items, dtype=object)
+    arr[:] = list(range(list_items))
+    blob = pickle.dumps(arr, protocol=2)
+    shape = made.b_int(list_items) + pickle.TUPLE1
+    assert blob.count(shape) == 1
+    return blob.replace(shape, made.b_int(shape_items) + pickle.TUPLE1)
+
+
+def _field_outside(offset: int) -> bytes:
+    """numpy's own pickle of a one-field structured array whose field offset is changed to ``offset``."""
+    blob = pickle.dumps(np.zeros(2, dtype=[("a", "<f8")]), protocol=2)
+    field = made.b_int(0) + pickle.TUPLE2  # (dtype, offset) in the dtype's fields
+    assert blob.count(field) == 1
+    return blob.replace(field, made.b_int(offset) + pickle.TUPLE2)
+
+
+def _motion_with(key_value: bytes) -> bytes:
+    """An AIST++ motion dict (protocol 2) with one more entry, pickled instruction by instruction."""
+    blob = pickle.dumps(aistpp_dict(n=4), protocol=2)
+    assert blob.endswith(pickle.SETITEMS + pickle.STOP)
+    return blob[:-2] + key_value + pickle.SETITEMS + pickle.STOP
+
+
+HOSTILE_MOTIONS = {
+    # the audit's files: a plain restricted unpickler crashes (exit 139) or never finishes
+    "deep key": (lambda: made.deep_key_pickle(), "nested more than 100 levels"),
+    "shared (x, x) key": (lambda: made.shared_pair_pickle(64), "unfolds to more than"),
+    "deep key inside a motion": (
+        lambda: _motion_with(made.b_int(7) + pickle.TUPLE1 * 200_000 + made.b_int(1)),
+        "nested more than 100 levels",
+    ),  # fmt: skip
+    # numpy reads memory past its data
+    "object array, shape 3 over 2 items": (lambda: _object_array(3, 2), "from 2 items"),
+    "object array, shape 2^30 over 2 items": (lambda: _object_array(2**30, 2), "more than the file's"),
+    "structured field past its items": (lambda: _field_outside(100_000), "outside its 8-byte items"),
+    # sizes and instructions
+    "bytearray(2^40)": (
+        lambda: made.pickled(made.b_global("builtins", "bytearray") + made.b_tuple(made.b_int(2**40)) + pickle.REDUCE),
+        "builtins.bytearray with sizes",
+    ),  # fmt: skip
+    "persistent id": (lambda: made.pickled(made.b_str("x") + pickle.BINPERSID), "BINPERSID, which motion files never"),
+    "protocol-0 instance": (lambda: b"(iposix\nsystem\n.", "INST, which motion files never"),
+    "list containing itself": (
+        lambda: made.pickled(pickle.EMPTY_LIST + made.put(0) + made.get(0) + pickle.APPEND),
+        "contains itself",
+    ),  # fmt: skip
+}
+"""name -> (maker of the file's bytes, a fragment of its refusal)."""
+MOTION_READERS = {
+    "load_pickle": load_pickle,
+    "AIST++ reader": load_motion_pkl,
+    "seed_motion_file / motion_file": load_motion_file,
+}
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("reader", list(MOTION_READERS))
+@pytest.mark.parametrize("case", list(HOSTILE_MOTIONS))
+def test_hostile_motion_pickles_are_refused_quickly(tmp_path, case, reader):
+    """Each file is refused by every reader with one DataError naming the file and the limit, within 10 s of CPU
+    time, before anything is built (a crash here would kill pytest: the entry-point test below runs them apart)."""
+    make, fragment = HOSTILE_MOTIONS[case]
+    path = tmp_path / "gBR_sBM_cAll_d04_mBR0_ch01.pkl"
+    path.write_bytes(make())
+    cpu_start = time.process_time()
+    with pytest.raises(DataError) as exc:
+        MOTION_READERS[reader](path)
+    refused(exc, str(path), fragment)
+    assert time.process_time() - cpu_start < 10.0
+
+
+def test_scan_limits_of_motion_pickles(tmp_path):
+    """Real motion files pass far below the limits: an AIST++ motion of 20 s with numpy arrays, and a 60 s motion
+    written as lists of numbers; the limits decide (a tighter limit refuses the same file, naming it)."""
+    from dgsdp.utils.pickle_scan import DATA_LIMITS, ScanLimits, ScanReport, scan_stream
+
+    arrays = tmp_path / "arrays.pkl"
+    arrays.write_bytes(pickle.dumps(aistpp_dict(n=1200), protocol=4))
+    lists = tmp_path / "lists.pkl"
+    lists.write_bytes(pickle.dumps(np.zeros((1800, 151)).tolist(), protocol=2))
+    for path, opcodes in ((arrays, 60), (lists, 1800 * 151)):
+        report = ScanReport(file_bytes=path.stat().st_size)
+        with open(path, "rb") as f:
+            scan_stream(f, report, DATA_LIMITS, "data")
+        assert opcodes <= report.opcodes < DATA_LIMITS.max_opcodes / 10 and report.depth <= 8
+        assert load_pickle(path) is not None
+    with pytest.raises(DataError) as exc:
+        load_pickle(lists, limits=ScanLimits(max_opcodes=100_000))
+    refused(exc, str(lists), "more than 100,000 instructions")
+
+
+@pytest.mark.parametrize("protocol", [0, 1, 2, 3, 4, 5])
+def test_every_protocol_passes_the_scan(tmp_path, protocol):
+    """The scan knows every instruction plain data is written with (protocol 0's text opcodes, 4's frames and
+    MEMOIZE, 5's bytearrays): sets, frozensets, shared references and numpy arrays load as pickle gives them."""
+    shared = [1.5, "x"]
+    value = {"a": np.arange(6.0).reshape(2, 3), "s": {1, 2}, "f": frozenset({3}), "twice": (shared, shared),
+             "big": 10**30, "neg": -5, "text": "é" * 300, "b": b"\x00" * 300, "t": ()}  # fmt: skip
+    path = tmp_path / "v.pkl"
+    path.write_bytes(pickle.dumps(value, protocol=protocol))
+    got, expected = load_pickle(path), pickle.loads(path.read_bytes())
+    assert repr(got) == repr(expected)
+    assert got["twice"][0] is got["twice"][1]
+
+
+@pytest.mark.timeout(600)
+def test_generate_refuses_hostile_seed_motions_in_a_fresh_interpreter(tmp_path):
+    """The audit's command, ``generate.py task=seed_motion seed_motion_file=<file>``, on the files that crashed or
+    hung it: a non-zero exit with one ``error:`` line naming the file and the limit, no traceback, within 10 s of CPU
+    time each, nothing written. Run in a fresh interpreter, so that a segfault or a hang fails the test."""
+    import json
+    import sys
+    from pathlib import Path
+
+    import torch
+
+    repo = Path(__file__).resolve().parents[2]
+    sys.path.insert(0, str(repo / "tests" / "generation"))
+    from gen_helpers import tiny_model, write_click_song
+
+    model = tiny_model()
+    checkpoint = tmp_path / "tiny.ckpt"
+    torch.save({"hyper_parameters": model.spec.to_dict(), "state_dict": model.state_dict()}, checkpoint)
+    write_click_song(tmp_path / "song.wav", 3.0)
+    cases = ("deep key", "shared (x, x) key", "object array, shape 3 over 2 items", "structured field past its items")
+    files = {}
+    for i, case in enumerate(cases):
+        files[case] = tmp_path / f"seed{i}.pkl"
+        files[case].write_bytes(HOSTILE_MOTIONS[case][0]())
+    common = [f"checkpoint={checkpoint}", f"music={tmp_path / 'song.wav'}", "task=seed_motion", "sampling.steps=2",
+              f"output_dir={tmp_path / 'out'}", f"paths.cache_dir={tmp_path / 'cache'}", "device=cpu"]  # fmt: skip
+    jobs = [{"name": "warm-up", "script": str(repo / "generate.py"), "argv": ["--help"]}]
+    jobs += [
+        {"name": case, "script": str(repo / "generate.py"), "argv": [*common, f"seed_motion_file={path}",
+                                                                     f"hydra.run.dir={tmp_path / 'run'}"]}
+        for case, path in files.items()
+    ]  # fmt: skip
+    (tmp_path / "jobs.json").write_text(json.dumps(jobs))
+    env = {**os.environ, "PYTHONPATH": str(repo), "HF_HUB_OFFLINE": "1", "WANDB_MODE": "offline"}
+    proc = subprocess.run(
+        [sys.executable, str(repo / "tests" / "cli" / "cli_driver.py"), str(tmp_path / "results.json"),
+         str(tmp_path / "jobs.json")],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=540,
+    )  # fmt: skip
+    assert proc.returncode == 0, f"the interpreter died (rc {proc.returncode}): {proc.stderr[-2000:]}"
+    results = json.loads((tmp_path / "results.json").read_text())
+    for case, path in files.items():
+        result = results[case]
+        code, output = result["code"], result["stdout"] + result["stderr"]
+        if isinstance(code, str) and code.startswith("error: "):  # SystemExit(message): exit status 1
+            output, code = output + code, 1
+        assert code in (1, 2), f"{case}: exit {code!r}: {output[-2000:]}"
+        assert "Traceback" not in output, f"{case}: {output[-2000:]}"
+        errors = [line for line in output.splitlines() if line.startswith("error: ")]
+        assert len(errors) == 1 and str(path) in errors[0], f"{case}: {output[-2000:]}"
+        assert HOSTILE_MOTIONS[case][1].lower() in errors[0].lower(), f"{case}: {errors[0]}"
+        assert result["cpu_seconds"] < 10.0, f"{case}: {result['cpu_seconds']:.1f} s CPU"
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
