@@ -98,11 +98,24 @@ class ClipSource:
         self._manifest = read_manifest(self.data_root) if manifest.is_file() else None
 
     @property
+    def fed_beat_tracker(self) -> str | None:
+        """The beat tracker whose beats the model is fed (its librosa features' beat column), or None."""
+        if self.audio_encoder is None or self.audio_encoder.name != "librosa":
+            return None
+        return str(getattr(self.audio_encoder, "beat_tracker", "librosa"))
+
+    @property
     def beat_source(self) -> str:
         """What BeatAlign is scored against, in words (for the results)."""
         if self._manifest is not None:
             return f"the synthetic songs' known beats ({SYNTHETIC_MANIFEST})"
-        return "librosa's beat tracker on the songs (column 34 of the 35-d librosa features): no known beats"
+        text = "librosa's beat tracker on the songs (column 34 of the 35-d librosa features): no known beats"
+        if self.fed_beat_tracker not in (None, "librosa"):
+            text += (
+                f"; the model was fed the {self.fed_beat_tracker!r} tracker's beats (audio.beat_tracker), so it is "
+                "scored against librosa's, which it was not fed"
+            )
+        return text
 
     def known_beats(self, seq: DanceSequence) -> np.ndarray | None:
         """Beat frames (K,) at 30 FPS of a sequence's music as the dataset made them (a synthetic dataset's
@@ -141,11 +154,13 @@ class ClipSource:
         return sequences
 
     def music_beats(self, seq: DanceSequence) -> np.ndarray:
-        """Beat frames (K,) at 30 FPS of a sequence's music: column 34 of the 35-d librosa features (the model's
-        own features when it was trained on them, else the librosa encoder of ``conf/audio/librosa.yaml``)."""
+        """Beat frames (K,) at 30 FPS of a sequence's music by librosa's beat tracker: column 34 of the 35-d librosa
+        features (the model's own features when they hold librosa's beats, else the librosa encoder of
+        ``conf/audio/librosa.yaml``: a model fed another tracker's beats is not scored against the beats it was
+        fed)."""
         if seq.music_id in self._beats:
             return self._beats[seq.music_id]
-        if self.audio_encoder is not None and self.audio_encoder.name == "librosa" and seq.audio is not None:
+        if self.fed_beat_tracker == "librosa" and seq.audio is not None:
             feats = seq.audio
         else:
             if self._beat_encoder is None:

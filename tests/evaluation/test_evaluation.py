@@ -324,3 +324,36 @@ def test_protocols_and_sweeps_sample_as_the_papers_and_say_so(tmp_path):
     assert "student" not in results_markdown(results)
     student = results_markdown({**results, "run": {"guidance_student": True}})
     assert "sampling=edge); a guidance-distilled student, one pass per step" in student
+
+
+def test_beat_align_of_a_model_fed_the_independent_tracker(eval_data):
+    """A model fed the independent tracker's beats (``audio.beat_tracker=flux``) is scored against librosa's
+    tracker, which it was not fed, and the results say so: the clips' beats are librosa's beats of the song, not
+    the beat column of the model's own features (here a made-up column, every 7th frame)."""
+    import dataclasses
+
+    from dgsdp.audio import FeatureCache, LibrosaEncoder
+    from dgsdp.evaluation import ClipSource
+    from dgsdp.metrics import music_beats_from_features
+
+    real = tmp_copy_without_manifest(eval_data["root"])
+    spec = ProtocolSpec.from_config({"name": "t", "lengths_seconds": [5], "splits": ["test"]})
+    librosa = LibrosaEncoder()
+    for fed, encoder in (("flux", LibrosaEncoder(beat_tracker="flux")), ("librosa", librosa)):
+        source = ClipSource(spec, data_root=real, cache_dir=eval_data["cache"], audio_encoder=encoder, seed=0,
+                            warnings=WarningLog(), progress=False)  # fmt: skip
+        seq = source.load_split("test", with_music=False)[0]
+        made_up = np.zeros((len(seq.motion), 35), np.float32)
+        made_up[::7, 34] = 1.0
+        seq = dataclasses.replace(seq, audio=made_up)
+        beats = source.music_beats(seq)
+        if fed == "flux":
+            feats = FeatureCache(eval_data["cache"]).features_for_file(librosa, source.music_file(seq),
+                                                                       music_id=seq.music_id)  # fmt: skip
+            expected = music_beats_from_features(feats)
+            assert np.array_equal(beats, expected) and not np.array_equal(beats, np.arange(0, len(made_up), 7))
+            assert "fed the 'flux' tracker's beats" in source.beat_source
+            assert source.beat_source.startswith("librosa's beat tracker")
+        else:  # the model's own column holds librosa's beats: it is read, not recomputed
+            assert np.array_equal(beats, np.arange(0, len(made_up), 7))
+            assert "fed the" not in source.beat_source
