@@ -3,7 +3,8 @@
 Everything is served from this machine: the theme uses system fonts, analytics are off, and the 3D viewer is
 plain JavaScript (:mod:`dgsdp.studio.viewer`). Each generation writes into its own folder under the studio's
 work folder, and each browser session keeps its own current dance, so users sharing a studio never see each
-other's results; the model runs one request at a time from a queue.
+other's results; with logins, each login's dances and uploads can be read by that login only
+(:mod:`dgsdp.studio.access`). The model runs one request at a time from a queue.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from dgsdp.errors import AudioError, ConfigError, DgsdpError  # noqa: E402
 from dgsdp.generation import Finishing, parse_schedule  # noqa: E402
 from dgsdp.sampling import METHODS, GuidanceSettings, SamplingSettings  # noqa: E402
 from dgsdp.studio import engine as eng  # noqa: E402
+from dgsdp.studio.access import LOGIN_PREFIX, FileAccess, LoginFiles  # noqa: E402
 from dgsdp.studio.viewer import CSS_TEMPLATE, HTML_TEMPLATE, JS_ON_LOAD, viewer_value, write_joints_json  # noqa: E402
 from dgsdp.style import AISTPP_GENRES  # noqa: E402
 from dgsdp.utils.deadline import time_limit  # noqa: E402
@@ -193,9 +195,12 @@ class Studio:
     """The page's handlers, with the engine and the folders they share."""
 
     def __init__(self, config: StudioConfig, engine: eng.Engine | None = None) -> None:
+        from gradio.utils import get_upload_folder
+
         self.config = config
         self.work_dir = Path(config.work_dir).expanduser().resolve()
         self.work_dir.mkdir(parents=True, exist_ok=True)
+        self.access = FileAccess(self.work_dir, Path(get_upload_folder()))  # who may read which file (logins)
         self.engine = engine or eng.Engine(
             self.work_dir / "cache", device=config.device, max_song_seconds=config.max_song_seconds,
             finishing=config.finishing,
@@ -230,11 +235,27 @@ class Studio:
             raise ConfigError(f"{text} is not a checkpoint file (a folder or a device); give the path of a .ckpt")
         return text
 
+    def login(self, request: gr.Request | None) -> str | None:
+        """The login a handler serves ('' for a request without one); None when the studio has no logins, or for a
+        call from this process (no request): then every file is everyone's."""
+        if not self.config.auth or request is None:
+            return None
+        return getattr(request, "username", None) or ""
+
+    def run_folders(self) -> list[Path]:
+        """Every run folder, newest first: ``runs/<run>`` (no logins) and ``runs/<login folder>/<run>``."""
+        runs = self.work_dir / "runs"
+        found = []
+        for entry in _entries(runs):
+            found += _entries(entry) if entry.name.startswith(LOGIN_PREFIX) and entry.is_dir() else [entry]
+        return _by_age(found)
+
     def prune(self) -> None:
-        """Keep the newest ``keep_runs`` finished run folders and song uploads; remove the rest, and run folders
-        that never got their viewer file (a request killed mid-way) once they are older than a request can be."""
+        """Keep the newest ``keep_runs`` finished run folders (of all logins together) and song uploads; remove the
+        rest, and run folders that never got their viewer file (a request killed mid-way) once they are older than
+        a request can be."""
         keep = self.config.keep_runs
-        runs = _newest_first(self.work_dir / "runs")
+        runs = self.run_folders()
         finished = [d for d in runs if (d / "viewer.json").is_file()]
         stale = [d for d in runs if d not in finished and _age_s(d) > self.config.request_timeout_s + 60]
         doomed = stale + (finished[keep:] if keep > 0 else [])
@@ -246,26 +267,28 @@ class Studio:
                 shutil.rmtree(path, ignore_errors=True)
             else:
                 path.unlink(missing_ok=True)
+        self.access.forget_removed()
 
     def uploads_dir(self) -> Path | None:
         """Gradio's upload folder when it is this studio's own (inside its work folder), else None."""
-        from gradio.utils import get_upload_folder
-
-        folder = Path(get_upload_folder()).resolve()
+        folder = self.access.upload_dir
         return folder if folder.is_relative_to(self.work_dir) else None
 
-    def request_folder(self) -> Path:
-        folder = self.work_dir / "runs" / f"{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:8]}"
+    def request_folder(self, login: str | None = None) -> Path:
+        """A fresh run folder in the login's folder of runs (see :meth:`FileAccess.runs_folder`)."""
+        folder = self.access.runs_folder(login) / f"{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:8]}"
         folder.mkdir(parents=True)
         return folder
 
-    def check_song(self, song: str | None) -> Path:
+    def check_song(self, song: str | None, login: str | None = None) -> Path:
+        """The song of a request: an audio file within the upload limit that ``login`` may use (its own upload or
+        dance, or an example song); another login's song gets the same message as a missing one."""
         if not song:
             raise AudioError("upload a song (wav, mp3, ogg or flac) or pick an example song first")
         path = Path(song)
         if path.suffix.lower() not in AUDIO_TYPES:
             raise AudioError(f"{path.name} is not a song this studio reads; upload a wav, mp3, ogg or flac file")
-        if not path.is_file():
+        if not path.is_file() or not self.access.may_use(login, path):
             raise AudioError(f"the song {path.name} is no longer on the server; upload it again")
         size_mb = path.stat().st_size / 2**20
         if size_mb > self.config.max_upload_mb:
@@ -310,8 +333,9 @@ class Studio:
         value = genre if genre in genres else genres[0]
         return gr.update(choices=genres, value=value), f"Loaded {checkpoint}."
 
-    def on_timeline(self, rows: Any, song: str | None) -> tuple[str, str]:
-        """The schedule string of the timeline rows and a bar drawing the spans along the song."""
+    def on_timeline(self, rows: Any, song: str | None, request: gr.Request | None = None) -> tuple[str, str]:
+        """The schedule string of the timeline rows and a bar drawing the spans along the song (another login's
+        song is not read: the bar is drawn without the song's length)."""
         try:
             text = schedule_text(rows)
         except DgsdpError as e:
@@ -319,7 +343,7 @@ class Studio:
         if not text:
             return "(no schedule: the style above is used for the whole song)", ""
         seconds = None
-        if song:
+        if song and self.access.may_use(self.login(request), song):
             with contextlib.suppress(Exception):  # an unreadable song is reported when generating
                 info = sf.info(song)
                 seconds = info.frames / info.samplerate
@@ -329,10 +353,12 @@ class Studio:
         self,
         request: eng.DanceRequest,
         progress: gr.Progress,
+        login: str | None = None,
     ) -> tuple[str, list[str], dict, str]:
-        """Run one request into a fresh folder; return the viewer value, files, session state and a status line."""
+        """Run one request into a fresh folder of the login's; return the viewer value, files, session state and a
+        status line."""
         limit = self.config.request_timeout_s
-        folder = self.request_folder()
+        folder = self.request_folder(login)
         try:
             with time_limit(limit, f"the request was stopped at the studio's time limit of {limit:g} s per "
                             "request (--request-timeout); try a shorter song, fewer steps or no video"):  # fmt: skip
@@ -357,7 +383,7 @@ class Studio:
         label = f"{song.stem}  |  {dance.style}" if dance.style else song.stem
         value = viewer_value(_file_url(joints_path), _file_url(song), len(dance.joints), dance.fps, label)
         state = {"motion": str(npy), "song": str(song), "fps": dance.fps, "checkpoint": request.checkpoint}
-        shown = folder.relative_to(self.work_dir.parent)  # e.g. studio/runs/<time>-<id>
+        shown = folder.relative_to(self.work_dir.parent)  # e.g. studio/runs/<time>-<id>, runs/<login folder>/...
         status = f"{len(dance.joints)} frames ({seconds:.1f} s) generated in {elapsed:.1f} s; files in {shown}"
         if dance.tempo.octaves:  # the song is outside the model's training tempi (sampling.tempo_fold)
             status += f"; the song: {dance.tempo.describe()}"
@@ -365,25 +391,27 @@ class Studio:
 
     def on_generate(
         self, song, checkpoint, genre, free_text, rows, music_w, style_w, sampler, steps, seed, video, cleanup=True,
-        progress=gr.Progress(track_tqdm=True),
+        progress=gr.Progress(track_tqdm=True), request: gr.Request | None = None,
     ):  # fmt: skip
         try:
-            request = eng.DanceRequest(
-                checkpoint=self.checkpoint_path(checkpoint), song=self.check_song(song),
+            login = self.login(request)
+            dance = eng.DanceRequest(
+                checkpoint=self.checkpoint_path(checkpoint), song=self.check_song(song, login),
                 style=style_text(genre, free_text, rows), **sampling_values(music_w, style_w, sampler, steps, seed),
                 video=bool(video), cleanup=bool(cleanup),
             )  # fmt: skip
-            return self.run(request, progress)
+            return self.run(dance, progress, login)
         except DgsdpError as e:
             raise gr.Error(str(e)) from None
 
     def on_edit(
         self, current, song, checkpoint, genre, free_text, rows, music_w, style_w, sampler, steps, seed, video,
         edit_label, keyframe_text, seed_seconds, range_start, range_end, cleanup=True,
-        progress=gr.Progress(track_tqdm=True),
+        progress=gr.Progress(track_tqdm=True), request: gr.Request | None = None,
     ):  # fmt: skip
         try:
-            if not current:
+            login = self.login(request)
+            if not current or not self.access.may_use(login, current["motion"]):  # a dance of this login's only
                 raise ConfigError("generate a dance first; edits change the current dance")
             kind = EDIT_LABELS.get(edit_label, edit_label)
             if not Path(current["motion"]).is_file():
@@ -395,13 +423,13 @@ class Studio:
                 start_seconds=finite(range_start or 0, "Range start"), end_seconds=finite(range_end or 0, "Range end"),
             )  # fmt: skip
             # Edits keep the current dance's song; continuing dances on to the song in the upload box.
-            target_song = self.check_song(song) if kind == "continue" else Path(current["song"])
-            request = eng.DanceRequest(
+            target_song = self.check_song(song, login) if kind == "continue" else Path(current["song"])
+            dance = eng.DanceRequest(
                 checkpoint=self.checkpoint_path(checkpoint), song=target_song, style=style_text(genre, free_text, rows),
                 **sampling_values(music_w, style_w, sampler, steps, seed), video=bool(video), edit=edit,
                 cleanup=bool(cleanup),
             )  # fmt: skip
-            return self.run(request, progress)
+            return self.run(dance, progress, login)
         except DgsdpError as e:
             raise gr.Error(str(e)) from None
 
@@ -414,14 +442,25 @@ def sampling_values(music_w: Any, style_w: Any, sampler: Any, steps: Any, seed: 
     }  # fmt: skip
 
 
-def _newest_first(folder: Path) -> list[Path]:
-    if not folder.is_dir():
-        return []
+def _entries(folder: Path) -> list[Path]:
+    """The entries of a folder ([] when it is missing or not a folder)."""
+    with contextlib.suppress(OSError):
+        return list(folder.iterdir())
+    return []
+
+
+def _by_age(paths: list[Path]) -> list[Path]:
+    """``paths`` newest first (by modification time; paths removed meanwhile are dropped)."""
     entries = []
-    for path in folder.iterdir():
+    for path in paths:
         with contextlib.suppress(OSError):  # removed meanwhile
             entries.append((path.stat().st_mtime, path))
     return [path for _, path in sorted(entries, key=lambda e: e[0], reverse=True)]
+
+
+def _newest_first(folder: Path) -> list[Path]:
+    """The entries of a folder, newest first."""
+    return _by_age(_entries(folder))
 
 
 def _age_s(path: Path) -> float:
@@ -439,6 +478,9 @@ def build_app(config: StudioConfig, engine: eng.Engine | None = None) -> tuple[g
     """The studio's Gradio Blocks (not launched) and its handlers."""
     studio = Studio(config, engine)
     studio.prune()
+    # Dances and example songs are served from where they are written, not copied into Gradio's upload folder:
+    # each file has one place, whose folder says whose it is, and the upload folder holds uploads only.
+    gr.set_static_paths([studio.work_dir / "runs", studio.work_dir / "examples"])
     checkpoints = studio.checkpoints()
     genres = list(AISTPP_GENRES.names)
     with gr.Blocks(title="dgsdp studio", analytics_enabled=False) as demo:
@@ -533,9 +575,13 @@ def theme() -> gr.themes.Base:
 
 
 def launch_kwargs(config: StudioConfig, studio: Studio) -> dict[str, Any]:
-    """``demo.launch`` arguments: the address, the files it may serve, the upload limit, the logins."""
+    """``demo.launch`` arguments: the address, the files it may serve, the upload limit, the logins (and with them,
+    the check that serves each login only its own files)."""
+    from starlette.middleware import Middleware
+
     return {
         "auth": list(config.auth) or None,
+        "app_kwargs": {"middleware": [Middleware(LoginFiles, access=studio.access)]} if config.auth else None,
         "auth_message": "Log in to the dgsdp studio." if config.auth else None,
         "server_name": config.host,
         "server_port": config.port,

@@ -1,16 +1,20 @@
 """The studio shared with a team, through the Gradio client: what one user can do to the server and to the others.
 
 Each test serves the studio from this process (the ``serve_studio`` fixture) and talks to it as a remote client would:
-long styles, crafted checkpoint paths, logins, slow requests holding the queue, non-finite numbers, and the
-retention of run folders and uploads.
+long styles, crafted checkpoint paths, logins, each login's files kept to that login, slow requests holding the
+queue, non-finite numbers, and the retention of run folders and uploads.
 """
 
 import datetime
 import json
 import os
+import re
 import shutil
 import time
+from contextlib import contextmanager
 from pathlib import Path
+from types import SimpleNamespace
+from urllib.parse import quote
 
 import httpx
 import numpy as np
@@ -61,20 +65,27 @@ def config(tmp: Path, checkpoint: str, **overrides) -> StudioConfig:
     return StudioConfig(**values)
 
 
-@pytest.fixture(scope="module")
-def shared(studio_checkpoint, serve_studio, tmp_path_factory):
-    """A studio as a team would run it: listed runs only, 2 runs kept, uploads in its work folder."""
-    tmp = tmp_path_factory.mktemp("shared")
+@contextmanager
+def uploads_in(folder: Path):
+    """Gradio's upload folder set to ``folder`` meanwhile (dgsdp-studio sets it to its work folder's uploads)."""
     before = os.environ.get("GRADIO_TEMP_DIR")
-    os.environ["GRADIO_TEMP_DIR"] = str(tmp / "studio" / "uploads")  # as dgsdp-studio sets it
+    os.environ["GRADIO_TEMP_DIR"] = str(folder)
     try:
-        with serve_studio(config(tmp, studio_checkpoint, keep_runs=2, request_timeout_s=120)) as served:
-            yield served
+        yield
     finally:
         if before is None:
             os.environ.pop("GRADIO_TEMP_DIR", None)
         else:
             os.environ["GRADIO_TEMP_DIR"] = before
+
+
+@pytest.fixture(scope="module")
+def shared(studio_checkpoint, serve_studio, tmp_path_factory):
+    """A studio as a team would run it: listed runs only, 2 runs kept, uploads in its work folder."""
+    tmp = tmp_path_factory.mktemp("shared")
+    with uploads_in(tmp / "studio" / "uploads"):
+        with serve_studio(config(tmp, studio_checkpoint, keep_runs=2, request_timeout_s=120)) as served:
+            yield served
 
 
 @pytest.fixture(scope="module")
@@ -313,3 +324,160 @@ def test_run_folders_and_uploads_are_kept_to_the_newest(shared, songs):
     assert not older_uploads & set(uploads.iterdir())  # two newer requests pushed the older uploads out
     newest = max(left, key=lambda d: (d / "viewer.json").stat().st_mtime_ns)  # names tie within a second
     assert np.load(next(newest.glob("*.npy"))).shape == (90, 151)  # the newest dance is whole
+
+
+TEAM = [("alice", "alice-secret"), ("bob", "bob-secret")]
+
+
+@pytest.fixture
+def team(studio_checkpoint, serve_studio, tmp_path):
+    """A studio with two logins, uploads in its work folder (one per test: Gradio reads its upload folder from the
+    environment, which the module's ``shared`` studio needs back afterwards)."""
+    with (
+        uploads_in(tmp_path / "studio" / "uploads"),
+        serve_studio(config(tmp_path, studio_checkpoint, auth=TEAM)) as served,
+    ):
+        yield served
+
+
+def log_in(url: str, login: str) -> tuple[Client, httpx.Client]:
+    """A login's Gradio client, and plain HTTP with the same login (its cookies) for the file routes."""
+    client = Client(url, auth=(login, dict(TEAM)[login]), verbose=False)
+    return client, httpx.Client(base_url=url, cookies=client.cookies, timeout=30)
+
+
+def upload_as(http: httpx.Client, path: Path) -> Path:
+    """Upload a file as the page does; returns the path the server stored it at."""
+    response = http.post("gradio_api/upload", files=[("files", (path.name, path.read_bytes()))])
+    response.raise_for_status()
+    return Path(response.json()[0])
+
+
+def refused(response: httpx.Response, target: str) -> bool:
+    """Whether the answer is Gradio's refusal of a file it does not serve (the same for a missing file)."""
+    return response.status_code == 403 and response.json() == {"detail": f"File not allowed: {target}."}
+
+
+def file_data(path: Path) -> dict:
+    """A file input as a client sends it once the file is on the server."""
+    return {"path": str(path), "meta": {"_type": "gradio.FileData"}}
+
+
+def call(http: httpx.Client, api_name: str, *data) -> tuple[str, object]:
+    """One call of the page's API over plain HTTP (which sends a server path as is): (last event, its data)."""
+    response = http.post(f"gradio_api/call/{api_name}", json={"data": list(data)})
+    response.raise_for_status()
+    stream = http.get(f"gradio_api/call/{api_name}/{response.json()['event_id']}", timeout=120).text
+    event, payload = re.findall(r"event: (\w+)\ndata: (.*)", stream)[-1]
+    return event, json.loads(payload)
+
+
+def dance_folder(viewer: str) -> Path:
+    """The run folder of a dance, from the viewer's link to its joints."""
+    return Path(json.loads(viewer)["motion_url"].split("file=", 1)[1]).parent
+
+
+def test_each_login_reads_only_its_own_dances_and_uploads(team, songs):
+    url, studio = team
+    alice, alice_http = log_in(url, "alice")
+    bob, bob_http = log_in(url, "bob")
+    viewer, files, _ = generate(alice, studio, songs["three"])
+    # the client fetched the dance's downloads with alice's login, as her page does
+    assert {".npy", ".bvh", ".pkl"} <= {Path(f).suffix for f in files}
+    assert np.load(next(f for f in files if f.endswith(".npy"))).shape == (90, 151)
+    run = dance_folder(viewer)
+    bobs_run = dance_folder(generate(bob, studio, songs["five"])[0])
+    upload = upload_as(alice_http, songs["twenty"])
+    assert upload.is_relative_to(studio.uploads_dir())
+    dance = sorted(p for p in run.iterdir() if p.is_file())  # the song's copy, the viewer's joints, the files
+    assert {".wav", ".json", ".npy"} <= {p.suffix for p in dance}
+    for path in [*dance, upload]:
+        assert alice_http.get(f"gradio_api/file={path}").content == path.read_bytes()
+        assert refused(bob_http.get(f"gradio_api/file={path}"), str(path))
+    for path in bobs_run.iterdir():
+        assert refused(alice_http.get(f"gradio_api/file={path}"), str(path))
+    # each login's dances are in its own folder
+    assert run.parent.name.startswith("login-alice-") and run.parent.parent == studio.work_dir / "runs"
+    assert bobs_run.parent.name.startswith("login-bob-")
+
+    npy = next(p for p in dance if p.suffix == ".npy")
+    link = bobs_run / "link.npy"  # a link in bob's folder to alice's file
+    link.symlink_to(npy)
+    tricks = [
+        str(npy),
+        str(bobs_run / ".." / ".." / run.parent.name / run.name / npy.name),  # .. out of bob's folder
+        os.path.relpath(npy),  # relative to the server's folder
+        str(link),
+        str(run / "missing.npy"),  # the same answer whether or not the file exists
+        str(npy.parent / "no-such-folder" / ".." / npy.name),  # .. after a folder that does not exist
+    ]
+    for target in tricks:
+        assert refused(bob_http.get("gradio_api/file=" + quote(target, safe="")), target)  # no / left to normalise
+        assert refused(bob_http.get(f"gradio_api/file/{quote(target, safe='')}"), target)  # the older route
+        assert bob_http.head("gradio_api/file=" + quote(target, safe="")).status_code == 403
+        assert refused(
+            bob_http.get("gradio_api/file=" + quote(target, safe=""), headers={"Range": "bytes=0-9"}), target
+        )
+    assert alice_http.get(
+        "gradio_api/file=" + quote(str(npy), safe=""), headers={"Range": "bytes=0-9"}
+    ).status_code in (200, 206)
+    # the studio's other files (the feature cache) are nobody's, and a request without a login gets nothing
+    cached = [p for p in (studio.work_dir / "cache").rglob("*") if p.is_file()]
+    assert cached
+    assert refused(alice_http.get(f"gradio_api/file={cached[0]}"), str(cached[0]))
+    assert httpx.get(f"{url}gradio_api/file={npy}", timeout=10).status_code in (401, 403)
+    # the example songs are every login's
+    example = Path(studio.example_song("Krump"))
+    for http in (alice_http, bob_http):
+        assert http.get(f"gradio_api/file={example}").content == example.read_bytes()
+
+
+def test_a_login_cannot_dance_to_or_edit_another_logins_files(team, songs):
+    url, studio = team
+    _, alice_http = log_in(url, "alice")
+    _, bob_http = log_in(url, "bob")
+    upload = upload_as(alice_http, songs["three"])
+    values = list(generate_values(studio).values())
+    gone = "the song three.wav is no longer on the server; upload it again"
+    for target in (upload, upload.parent / "missing" / "three.wav"):  # the same message for a missing song
+        event, message = call(bob_http, "on_generate", file_data(target), *values)
+        assert event == "error" and message["error"] == gone
+    assert call(alice_http, "on_generate", file_data(upload), *values)[1][3].startswith("90 frames (3.0 s)")
+    # the timeline bar reads the length of one's own song only
+    rows = timeline([0, "1", "Krump"])
+    assert "3.0 s" in call(alice_http, "on_timeline", rows, file_data(upload))[1][1]
+    assert "song length unknown" in call(bob_http, "on_timeline", rows, file_data(upload))[1][1]
+
+    # the current dance is a session's; a session of another login cannot edit it
+    def no_progress(*args, **kwargs) -> None:
+        return None
+
+    alice, bob = SimpleNamespace(username="alice"), SimpleNamespace(username="bob")
+    values = list(generate_values(studio, rows=[]).values())  # as the handlers get them
+    current = studio.on_generate(str(upload), *values, progress=no_progress, request=alice)[2]
+    keep_range = ["Regenerate a time range", "", 1.0, 1.0, 2.0, True]
+    with pytest.raises(gr.Error, match="generate a dance first"):
+        studio.on_edit(current, str(upload), *values[:10], *keep_range, progress=no_progress, request=bob)
+    edited = studio.on_edit(current, str(upload), *values[:10], *keep_range, progress=no_progress, request=alice)
+    assert Path(edited[2]["motion"]).parent.parent.name.startswith("login-alice-")
+
+
+def test_runs_are_kept_to_the_newest_across_logins(studio_checkpoint, serve_studio, songs, tmp_path):
+    with uploads_in(tmp_path / "studio" / "uploads"):
+        with serve_studio(config(tmp_path, studio_checkpoint, auth=TEAM, keep_runs=2)) as (url, studio):
+            alice, bob = Client(url, auth=TEAM[0], verbose=False), Client(url, auth=TEAM[1], verbose=False)
+            first = dance_folder(generate(alice, studio, songs["three"])[0])
+            others = [dance_folder(generate(client, studio, songs["three"])[0]) for client in (bob, alice)]
+            assert not first.exists()  # --keep-runs 2 counts every login's dances together
+            assert sorted(p.parent for p in (studio.work_dir / "runs").rglob("viewer.json")) == sorted(others)
+            assert others[0].parent.name.startswith("login-bob-") and others[1].parent == first.parent
+
+
+def test_without_logins_every_file_is_served_as_before(shared, songs):
+    url, studio = shared
+    viewer = generate(Client(url, verbose=False), studio, songs["three"])[0]
+    run = dance_folder(viewer)
+    assert run.parent == studio.work_dir / "runs"  # one user: no login folders
+    uploaded = Path(upload(url, songs["five"]))
+    for path in (run / "viewer.json", uploaded):
+        assert httpx.get(f"{url}gradio_api/file={path}", timeout=10).content == path.read_bytes()
