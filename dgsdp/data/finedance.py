@@ -8,13 +8,16 @@ rotation matrix (pytorch3d's ``matrix_to_rotation_6d``, which FineDance's code u
 (``style1``) and the fine genre (``style2``, see ``dgsdp/resources/finedance/genres.yaml``).
 
 Split and ignore lists are looked up in ``<root>/splits/``, then ``<root>/``, then the official lists shipped in
-``dgsdp/resources/finedance/``, as for AIST++ (:func:`dgsdp.data.aistpp.find_list`). Two split schemes:
-``genre`` (FineDance@Genre, recommended by its authors: ``train``, ``test``) and ``dancer`` (FineDance@Dancer:
-``train``, ``val``, ``test``).
+``dgsdp/resources/finedance/``, as for AIST++ (:func:`dgsdp.data.aistpp.find_list`). Three split schemes:
+``genre`` (FineDance@Genre, recommended by its authors: ``train``, ``test``), ``dancer`` (FineDance@Dancer:
+``train``, ``val``, ``test``) and ``lodge`` (FineDance@Genre with the 20 test ids LODGE generates: 120 and 130 are
+not ignored).
 
 Pose vectors (:func:`pose_vector`): the project's layout, 4 foot contacts + 3 root translation + 6D per joint, z-up,
 for the 22 body joints (``joints="body"``, 139-d, LODGE's body-only layout) or all 52 (``joints="full"``, 319-d).
-The contacts need forward kinematics on the SMPL-X skeleton, which the caller passes in.
+The contacts need forward kinematics on the SMPL-X skeleton, which the caller passes in. LODGE's preprocessing
+(trimmed starts, grounding, static windows dropped) is available as options (:func:`load_finedance_sequences`,
+:class:`FineDanceDataModule`); :mod:`dgsdp.data.finedance_lodge` converts to and from LODGE's 139-d layout.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ import json
 import logging
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -33,8 +36,16 @@ import torch
 import yaml
 
 from dgsdp.audio import AudioEncoder
+from dgsdp.data import finedance_lodge as lodge
 from dgsdp.data.aistpp import find_list, read_list
-from dgsdp.data.datamodule import MOTION_CACHE_VERSION, DanceDataModule, Sequence, SourceItem, read_sequences
+from dgsdp.data.datamodule import (
+    MOTION_CACHE_VERSION,
+    DanceDataModule,
+    Sequence,
+    SourceItem,
+    WindowDataset,
+    read_sequences,
+)
 from dgsdp.errors import ConfigError, DataError
 from dgsdp.motion.axes import (
     points_y_up_to_z_up,
@@ -63,8 +74,10 @@ ID_PATTERN = re.compile(r"^\d{3}$")
 SPLIT_SCHEMES: dict[str, tuple[str, tuple[str, ...]]] = {
     "genre": ("crossgenre", ("train", "test")),
     "dancer": ("crossdancer", ("train", "val", "test")),
+    "lodge": ("lodge", ("train", "test")),  # FineDance@Genre's lists with LODGE's ignore list (docs/finedance.md)
 }
 MAX_LABEL_BYTES = 1 << 16
+LODGE_OPTIONS = ("trim_starts", "ground", "drop_static")  # data.finedance switches for LODGE's preprocessing
 log = logging.getLogger(__name__)
 
 FINEDANCE_GENRES = GenreVocab.from_yaml(FINEDANCE_DIR / "genres.yaml")
@@ -335,10 +348,17 @@ def load_finedance_sequences(
     max_sequences: int | None = None,
     progress: bool = True,
     errors: list[tuple[str, str]] | None = None,
+    trim_starts: bool = False,
+    ground: bool = False,
 ) -> list[Sequence]:
     """The sequences of a FineDance split as pose vectors of ``skeleton`` (smplx22: 22 body joints, smplx52: all
     52) with their music, through the datamodule's cached reading (:func:`dgsdp.data.datamodule.read_sequences`;
-    ``errors`` as there). Each id is its own song: the music id is the sequence id."""
+    ``errors`` as there). Each id is its own song: the music id is the sequence id.
+
+    LODGE's preprocessing, applied after the cache (which holds the motion as read): ``trim_starts`` drops the
+    frames it cuts from the start of ten dances, from their motion and music (:data:`finedance_lodge.TRIM_FRAMES`;
+    a dance no longer than its cut is left out); ``ground`` then puts each dance's first frame on the floor
+    (:func:`finedance_lodge.ground`)."""
     joints = {v: k for k, v in SKELETONS.items()}.get(skeleton.name)
     if joints is None:
         raise ConfigError(f"FineDance motions are SMPL-X ({', '.join(SKELETONS.values())}), not {skeleton.name}")
@@ -364,10 +384,36 @@ def load_finedance_sequences(
                 functools.partial(wav_path, root, seq_id),
             )  # fmt: skip
         )
-    return read_sequences(
+    sequences = read_sequences(
         items, split=split, root=root, cache_dir=cache_dir, motion_namespace=motion_namespace(skeleton),
         audio_encoder=audio_encoder, waveform_sample_rate=waveform_sample_rate, progress=progress, errors=errors,
     )  # fmt: skip
+    if trim_starts:
+        sequences = [t for t in (trim_start(seq, waveform_sample_rate) for seq in sequences) if t is not None]
+    if ground:
+        sequences = [replace(seq, motion=lodge.ground(seq.motion, skeleton)) for seq in sequences]
+    return sequences
+
+
+def trim_start(seq: Sequence, waveform_sample_rate: int | None = None) -> Sequence | None:
+    """``seq`` without the frames LODGE's preprocessing cuts from the start of its dance and music
+    (:data:`finedance_lodge.TRIM_FRAMES`; unchanged for other ids), or None when nothing would be left.
+    ``waveform_sample_rate``: the rate of a waveform in ``seq.audio`` (features are cut by frames)."""
+    cut = lodge.TRIM_FRAMES.get(seq.name, 0)
+    if cut == 0:
+        return seq
+    if cut >= len(seq.motion):
+        log.info("FineDance %s left out: LODGE's preprocessing cuts its first %d frames, it has %d", seq.name, cut,
+                 len(seq.motion))  # fmt: skip
+        return None
+    audio = seq.audio
+    if audio is not None and audio.ndim == 1:
+        if waveform_sample_rate is None:
+            raise ValueError(f"the music of {seq.name} is a waveform: give its sample rate to cut its start")
+        audio = audio[int(round(cut * waveform_sample_rate / FPS)) :]
+    elif audio is not None:
+        audio = audio[cut:]
+    return replace(seq, motion=seq.motion[cut:], audio=audio)
 
 
 class FineDanceDataModule(DanceDataModule):
@@ -375,9 +421,13 @@ class FineDanceDataModule(DanceDataModule):
     from AIST++ (the same batches, windows, normaliser, floor height, loaders and caches), with FineDance's reader.
 
     ``finedance``: ``joints`` (``body``: the 22 body joints, skeleton smplx22, 139-d pose vectors; ``full``: all
-    52, smplx52, 319-d) and ``split_scheme`` (``genre`` or ``dancer``). The skeleton's rest offsets come from
-    ``smplx_file`` (the SMPL-X model or a file of its rest joints); ``skeleton`` need not be given (it follows
+    52, smplx52, 319-d) and ``split_scheme`` (``genre``, ``dancer`` or ``lodge``). The skeleton's rest offsets come
+    from ``smplx_file`` (the SMPL-X model or a file of its rest joints); ``skeleton`` need not be given (it follows
     ``joints``). Every split's labels and music files are checked in :meth:`prepare_data`, before any processing.
+
+    LODGE's preprocessing, each off by default (docs/finedance.md, "Differences from LODGE"): ``trim_starts`` cuts
+    the starts of ten dances, ``ground`` puts each dance's first frame on the floor (both on every split this
+    datamodule reads), ``drop_static`` leaves out the training windows whose motion barely varies.
     """
 
     skeletons = tuple(SKELETONS.values())
@@ -397,11 +447,16 @@ class FineDanceDataModule(DanceDataModule):
         options = dict(finedance or {})
         self.joints = str(options.pop("joints", "body"))
         self.scheme = str(options.pop("split_scheme", "genre"))
+        self.lodge_options = {name: options.pop(name, False) for name in LODGE_OPTIONS}
         if options:
             raise ConfigError(
-                f"unknown data.finedance settings {sorted(options)}; known: joints, split_scheme (the SMPL-X file "
-                "is data.smplx_file)"
+                f"unknown data.finedance settings {sorted(options)}; known: joints, split_scheme, "
+                f"{', '.join(LODGE_OPTIONS)} (the SMPL-X file is data.smplx_file)"
             )
+        for name, value in self.lodge_options.items():
+            if not isinstance(value, bool):
+                raise ConfigError(f"data.finedance.{name} must be true or false, got {value!r}")
+        self._static_dropped = False
         _joint_count(self.joints)
         if self.scheme not in SPLIT_SCHEMES:
             raise ConfigError(f"data.finedance.split_scheme={self.scheme!r}: use one of {', '.join(SPLIT_SCHEMES)}")
@@ -422,7 +477,8 @@ class FineDanceDataModule(DanceDataModule):
         super().__init__(root, cache_dir, skeleton=wanted, smplx_file=smplx_file, fps=fps, vocab=vocab, **settings)
 
     def settings(self) -> dict[str, Any]:
-        return {**super().settings(), "finedance": {"joints": self.joints, "split_scheme": self.scheme}}
+        finedance = {"joints": self.joints, "split_scheme": self.scheme, **self.lodge_options}
+        return {**super().settings(), "finedance": finedance}
 
     def check(self) -> dict[str, list[str]]:
         """Check the folder; return the ids of each split. One DgsdpError for what is wrong (a bad label or a
@@ -440,5 +496,34 @@ class FineDanceDataModule(DanceDataModule):
 
     def load_split(self, split: str) -> list[Sequence]:
         return load_finedance_sequences(
-            self.root, split, skeleton=self.skeleton, scheme=self.scheme, **self.reading_options()
-        )
+            self.root, split, skeleton=self.skeleton, scheme=self.scheme, trim_starts=self.lodge_options["trim_starts"],
+            ground=self.lodge_options["ground"], **self.reading_options(),
+        )  # fmt: skip
+
+    def setup(self, stage: str | None = None) -> None:
+        super().setup(stage)
+        train = self.datasets.get("train")
+        if self.lodge_options["drop_static"] and train is not None and not self._static_dropped:
+            self._drop_static_windows(train)
+            self._static_dropped = True
+
+    def _drop_static_windows(self, train: WindowDataset) -> None:
+        """Leave out the training windows LODGE's training drops (:func:`finedance_lodge.moving_windows`)."""
+        starts: dict[int, list[int]] = {}
+        for i, start in train.index:
+            starts.setdefault(i, []).append(start)
+        keep = {
+            (i, s)
+            for i, ss in starts.items()
+            for s, moving in zip(ss, lodge.moving_windows(train.sequences[i].motion, self.skeleton, ss, self.length))
+            if moving
+        }
+        before = len(train.index)
+        train.index = [item for item in train.index if item in keep]
+        log.info("FineDance: %d of %d training windows vary too little for LODGE's training and are left out",
+                 before - len(train.index), before)  # fmt: skip
+        if not train.index:
+            raise DataError(
+                f"every training window of {self.root} is static by LODGE's measure (data.finedance.drop_static); "
+                "turn the option off"
+            )
