@@ -18,6 +18,7 @@ from dgsdp.errors import DataError
 from dgsdp.evaluation.features import MODEL_FPS
 from dgsdp.evaluation.protocols import ProtocolSpec
 from dgsdp.evaluation.warning_log import WarningLog
+from dgsdp.generation.beatsync import fed_beat_tracker
 from dgsdp.metrics import music_beats_from_features
 from dgsdp.motion import SMPL24, Skeleton
 from dgsdp.resources import CONFIG_DIR
@@ -100,9 +101,7 @@ class ClipSource:
     @property
     def fed_beat_tracker(self) -> str | None:
         """The beat tracker whose beats the model is fed (its librosa features' beat column), or None."""
-        if self.audio_encoder is None or self.audio_encoder.name != "librosa":
-            return None
-        return str(getattr(self.audio_encoder, "beat_tracker", "librosa"))
+        return fed_beat_tracker(self.audio_encoder)
 
     @property
     def beat_source(self) -> str:

@@ -18,6 +18,14 @@ so that one clear speed dip lands on each music beat:
 So the timing moves by at most a quarter beat, the length is unchanged, and the dance locally runs at most
 ``max_rate`` times faster or slower. Frames given by an editing mask would move in time: a dance with a mask is
 returned unchanged.
+
+4. The judge: a retime aligned to one tracker's beats can still lose the beat the model had (a pause moved onto a
+   beat the tracker got wrong, a clear pause traded for a shallow one). So the retimed dance is kept only where
+   its timing is no worse than the model's own on every beat set it is judged by (the beats it aligned to, and
+   ``check_beats``: another tracker's, which it did not align to; :func:`other_tracker_beats`) and better on one:
+   the margin of its beat alignment score over its half-beat-shifted copy's
+   (:func:`dgsdp.metrics.beats.beat_scores`, both variants). Elsewhere the model's own timing is kept, and the stats
+   say which.
 """
 
 from __future__ import annotations
@@ -31,8 +39,9 @@ import torch
 from scipy.signal import argrelextrema
 
 from dgsdp.audio import AudioEncoder, FeatureCache, LibrosaEncoder
+from dgsdp.audio.beat_tracker import TrackedBeats, beats_of_song, bpm_of_beats
 from dgsdp.errors import DgsdpError
-from dgsdp.metrics.beats import BEAT_COLUMN, kinematic_speed, music_beats_from_features
+from dgsdp.metrics.beats import BAS_VARIANTS, BEAT_COLUMN, beat_scores, kinematic_speed, music_beats_from_features
 from dgsdp.motion import SMPL24, Skeleton, check_pose_dim, pose_to_joints, smpl24_layout
 
 
@@ -44,6 +53,7 @@ class BeatSync:
     max_rate: float = 1.25  # local speed-up (and 1 / slow-down) of the dance's time
     rate_penalty: float = 4.0  # cost of (slope - 1)^2 per beat against a dip's depth (0..1)
     max_skip: int = 4  # anchors at most this many beats apart are constrained together
+    judge: bool = True  # keep the model's timing where the retime is worse on any beat set (step 4)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_shift_beats) and 0.0 < self.max_shift_beats <= 0.5):
@@ -72,6 +82,44 @@ def song_beats(song: Path, cache: FeatureCache, encoder: AudioEncoder | None = N
     if not np.isin(np.asarray(features)[:, BEAT_COLUMN], (0.0, 1.0)).all():
         raise DgsdpError("the librosa features' beat column is not a 0/1 flag; cannot read music beats")
     return music_beats_from_features(features)
+
+
+def other_tracker_beats(song: Path, cache: FeatureCache, encoder: AudioEncoder | None = None) -> TrackedBeats:
+    """The song's beats by the tracker whose beats :func:`song_beats` does not give the model ``encoder``: the
+    independent tracker's (:mod:`dgsdp.audio.beat_tracker`), or librosa's for a model fed the independent tracker's
+    (``audio.beat_tracker=flux``). What a retime is judged by beside the beats it aligned to."""
+    if fed_beat_tracker(encoder) == "flux":
+        frames = np.asarray(song_beats(song, cache, None))  # the default librosa features: librosa's tracker
+        return TrackedBeats(bpm_of_beats(frames), frames)
+    return beats_of_song(song)
+
+
+def fed_beat_tracker(encoder: AudioEncoder | None) -> str | None:
+    """Whose beats the model's librosa features hold ("librosa" or "flux"), or None for other encoders."""
+    if encoder is None or encoder.name != "librosa":
+        return None
+    return str(getattr(encoder, "beat_tracker", "librosa"))
+
+
+def timing_margins(joints: np.ndarray, beat_sets: list[np.ndarray], fps: float) -> np.ndarray:
+    """(len(beat_sets) * 2,) the margin of a dance's beat alignment over its half-beat-shifted copy's, per beat set
+    and BAS variant (NaN where a beat set has fewer than two beats in the dance)."""
+    out = []
+    for beats in beat_sets:
+        for variant in BAS_VARIANTS:
+            scores = beat_scores(joints, beats, fps=fps, variant=variant)
+            out.append(scores.bas - scores.shifted)
+    return np.asarray(out, dtype=np.float64)
+
+
+def retime_helps(raw: np.ndarray, retimed: np.ndarray) -> bool:
+    """Whether retimed margins (:func:`timing_margins`) are no lower than the raw dance's on every beat set and
+    variant, and higher on one (margins equal to 1e-9 count as equal)."""
+    ok = np.isfinite(raw) & np.isfinite(retimed)
+    if not ok.any():
+        return False
+    diff = retimed[ok] - raw[ok]
+    return bool((diff >= -1e-9).all() and (diff > 1e-9).any())
 
 
 def _local_periods(beats: np.ndarray) -> np.ndarray:
@@ -172,33 +220,45 @@ def sync_to_beats(
     settings: BeatSync | None = None,
     stats: list[dict[str, float]] | None = None,
     skeleton: Skeleton = SMPL24,
+    check_beats: list[np.ndarray] | tuple[np.ndarray, ...] = (),
 ) -> torch.Tensor:
     """Unnormalised motion (T, D) or (S, T, D) of ``skeleton`` (D its pose size; the speed is that of its joints in
     SMPL's layout, :func:`~dgsdp.motion.smpl24_layout`) at ``fps`` and music beat frames (B,) of the same frame
-    rate -> the motion retimed so that its speed dips fall on the beats (see the module docstring). With an editing
-    ``mask`` the motion is returned unchanged. ``stats``: a list that gets one dict per motion: ``beats``,
-    ``anchored_beats``, and the mean and largest retiming offset ``mean_shift_ms``, ``max_shift_ms`` (how far in
-    time a frame's pose moved)."""
+    rate -> the motion retimed so that its speed dips fall on the beats (see the module docstring), each dance kept
+    as it was where the retime is worse on ``music_beats`` or on any of ``check_beats`` (other trackers' beat frames;
+    step 4, unless ``settings.judge`` is False). With an editing ``mask`` the motion is returned unchanged.
+    ``stats``: a list that gets one dict per motion: ``beats``, ``anchored_beats``, the mean and largest retiming
+    offset ``mean_shift_ms``, ``max_shift_ms`` (how far in time a frame's pose moved; 0 where the model's timing was
+    kept), ``retimed`` (1 where the retime was kept, 0 where the model's own timing was) and ``judged_beat_sets``."""
     check_pose_dim(motion, skeleton, "sync_to_beats's motion")
     if motion.ndim not in (2, 3):
         raise ValueError(f"sync_to_beats needs motion (T, D) or (S, T, D), got {tuple(motion.shape)}")
+    s = settings or BeatSync()
     batch = motion if motion.ndim == 3 else motion[None]
-    unchanged = {"beats": len(music_beats), "anchored_beats": 0, "mean_shift_ms": 0.0, "max_shift_ms": 0.0}
+    unchanged = {"beats": len(music_beats), "anchored_beats": 0, "mean_shift_ms": 0.0, "max_shift_ms": 0.0,
+                 "retimed": 0.0, "judged_beat_sets": 0.0}  # fmt: skip
     if mask is not None or motion.shape[-2] < 3:
         if stats is not None:
             stats.extend(dict(unchanged) for _ in batch)
         return motion
     out = []
     layout = smpl24_layout(skeleton)
+    beat_sets = [np.asarray(music_beats, dtype=np.int64), *(np.asarray(b, dtype=np.int64) for b in check_beats)]
     for x in batch:
         joints = pose_to_joints(x.detach().double().cpu(), skeleton).numpy()[:, layout]
         speed = kinematic_speed(joints, fps)
-        beats, sources = beat_anchors(speed, np.asarray(music_beats), settings)
+        beats, sources = beat_anchors(speed, beat_sets[0], s)
         times = warp_times(len(x), beats, sources)
-        out.append(resample(x, times) if len(beats) else x)
+        retimed = resample(x, times) if len(beats) else x
+        keep = len(beats) > 0
+        if keep and s.judge:
+            moved = pose_to_joints(retimed.detach().double().cpu(), skeleton).numpy()[:, layout]
+            keep = retime_helps(timing_margins(joints, beat_sets, fps), timing_margins(moved, beat_sets, fps))
+        out.append(retimed if keep else x)
         if stats is not None:
-            shift_ms = np.abs(times - np.arange(len(x))) * 1000.0 / fps
+            shift_ms = np.abs(times - np.arange(len(x))) * 1000.0 / fps if keep else np.zeros(1)
             stats.append({**unchanged, "anchored_beats": len(beats), "mean_shift_ms": float(shift_ms.mean()),
-                          "max_shift_ms": float(shift_ms.max())})  # fmt: skip
+                          "max_shift_ms": float(shift_ms.max()), "retimed": float(keep),
+                          "judged_beat_sets": float(len(beat_sets) if s.judge else 0)})  # fmt: skip
     result = torch.stack(out)
     return result if motion.ndim == 3 else result[0]

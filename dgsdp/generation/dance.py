@@ -37,6 +37,25 @@ class Dance:
     tempo: TempoFold = field(default_factory=TempoFold)
     skeleton: Skeleton = SMPL24
 
+    def notes(self) -> list[str]:
+        """What a user should know about how these dances were made, one line each: a song danced in half or double
+        time (``sampling.tempo_fold``), and whether beat sync kept its retime or the model's own timing (the retime
+        is kept only where it is no worse on either tracker's beats: docs/beatsync.md)."""
+        notes = []
+        if self.tempo.octaves:
+            notes.append(f"the song: {self.tempo.describe()} (sampling.tempo_fold)")
+        judged = [f for f in self.finishing if f.get("judged_beat_sets")]
+        kept = sum(bool(f.get("retimed")) for f in judged)
+        if judged and kept == len(judged):
+            notes.append("beat sync: retimed onto the song's beats")
+        elif judged:
+            which = "" if len(judged) == 1 else f" in {len(judged) - kept} of {len(judged)} dances"
+            notes.append(
+                f"beat sync: the model's own timing kept{which} (retimed onto the beats, its timing was worse "
+                "by one of the trackers' beats)"
+            )
+        return notes
+
     @property
     def joints(self) -> np.ndarray:
         """Joint positions (num_samples, T, J, 3), z-up metres (forward kinematics of the run's skeleton)."""

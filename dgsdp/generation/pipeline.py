@@ -25,7 +25,7 @@ from dgsdp.audio import AudioEncoder, FeatureCache, audio_duration_seconds
 from dgsdp.audio.tempo import TempoFold, beats_tempo_bpm, fold_beats, fold_octaves
 from dgsdp.editing import build_mask, check_task, load_motion_file, place_known
 from dgsdp.errors import AudioError, ConfigError
-from dgsdp.generation.beatsync import BeatSync, song_beats, sync_to_beats
+from dgsdp.generation.beatsync import BeatSync, other_tracker_beats, song_beats, sync_to_beats
 from dgsdp.generation.dance import Dance
 from dgsdp.generation.longform import DanceRequest, WindowLayout, sample_items
 from dgsdp.generation.schedule import is_schedule, parse_schedule, schedule_styles
@@ -495,8 +495,12 @@ class DanceGenerator:
         )  # fmt: skip
         retime = cleanup is not False and beat_sync is not False and mask is None and music is not None
         beats = song_beats(song, self.cache, self.audio_encoder) if retime else None
+        # the retime is judged by another tracker's beats too, which it did not align to
+        check = [other_tracker_beats(song, self.cache, self.audio_encoder).frames] if retime else []
         stats: list[dict[str, float]] = []
-        finished = self.finish(motions, beats, mask=mask, cleanup=cleanup, beat_sync=beat_sync, stats=stats)
+        finished = self.finish(
+            motions, beats, mask=mask, cleanup=cleanup, beat_sync=beat_sync, stats=stats, check_beats=check
+        )
         return Dance(
             finished, self.fps, self.floor_height, song, plan.text, raw=motions, finishing=stats, tempo=tempo,
             skeleton=self.skeleton,
@@ -511,11 +515,13 @@ class DanceGenerator:
         cleanup: bool | FloorCleanup = True,
         beat_sync: bool | BeatSync = True,
         stats: list[dict[str, float]] | None = None,
+        check_beats: list[np.ndarray] | tuple[np.ndarray, ...] = (),
     ) -> torch.Tensor:
         """The model's dances (S, T, D) as generate.py writes them. ``cleanup`` False: unchanged (the model's raw
         output). Otherwise, first, unless ``beat_sync`` is False, each dance is retimed so that its pauses fall on
         the music beats (frames, (K,); :func:`dgsdp.generation.beatsync.sync_to_beats`; not with an editing
-        ``mask``, whose given frames would move, nor without beats); then the feet are put on the run's floor
+        ``mask``, whose given frames would move, nor without beats), where the retime is no worse on those beats
+        and on each of ``check_beats`` (another tracker's beat frames); then the feet are put on the run's floor
         (:func:`dgsdp.motion.clean_motion`; given channels of an edit are kept exactly). ``stats``: a list that gets
         one dict per dance of what each step changed (the ``stats`` of both functions; empty for a step not run)."""
         notes: list[dict[str, float]] = [{} for _ in range(motions.shape[0] if motions.ndim == 3 else 1)]
@@ -526,7 +532,7 @@ class DanceGenerator:
                 retimed: list[dict[str, float]] = []
                 motions = sync_to_beats(
                     motions, beats[beats < motions.shape[-2]], self.fps, mask=mask, settings=settings, stats=retimed,
-                    skeleton=self.skeleton,
+                    skeleton=self.skeleton, check_beats=[np.asarray(b) for b in check_beats],
                 )  # fmt: skip
                 notes = [{**n, **r} for n, r in zip(notes, retimed)]
             settings = cleanup if isinstance(cleanup, FloorCleanup) else None

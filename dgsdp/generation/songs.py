@@ -142,8 +142,8 @@ def dance_songs(settings: GenerateSettings) -> GenerationReport:
         try:
             dance = dancer.dance(song, plan)
             motions = dance.motion
-            if dance.tempo.octaves:  # the user should know the model danced it in half (double) time
-                log.info("%s: %s (sampling.tempo_fold)", song.name, dance.tempo.describe())
+            for note in dance.notes():  # half or double time, beat sync's choice
+                log.info("%s: %s", song.name, note)
             files: list[Path] = []
             for k, motion in enumerate(motions):
                 name = stem if settings.num_samples == 1 else f"{stem}_sample{k}"

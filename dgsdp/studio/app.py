@@ -385,8 +385,8 @@ class Studio:
         state = {"motion": str(npy), "song": str(song), "fps": dance.fps, "checkpoint": request.checkpoint}
         shown = folder.relative_to(self.work_dir.parent)  # e.g. studio/runs/<time>-<id>, runs/<login folder>/...
         status = f"{len(dance.joints)} frames ({seconds:.1f} s) generated in {elapsed:.1f} s; files in {shown}"
-        if dance.tempo.octaves:  # the song is outside the model's training tempi (sampling.tempo_fold)
-            status += f"; the song: {dance.tempo.describe()}"
+        if dance.notes:  # half or double time, beat sync's choice
+            status += "; " + "; ".join(dance.notes)
         return value, [str(f) for f in dance.files], state, status
 
     def on_generate(

@@ -93,6 +93,7 @@ class Dance:
     files: list[Path] = field(default_factory=list)
     tempo: TempoFold = field(default_factory=TempoFold)  # how the song's beats were given to the model
     skeleton: Skeleton = SMPL24
+    notes: list[str] = field(default_factory=list)  # what the user should know (:meth:`dgsdp.generation.Dance.notes`)
 
 
 class Engine:
@@ -171,7 +172,10 @@ class Engine:
             skeleton=gen.skeleton,
         )
         joints = pose_to_joints(motion.double(), gen.skeleton).float().numpy()
-        return Dance(motion, joints, gen.fps, request.song, plan.text, files, tempo=danced.tempo, skeleton=gen.skeleton)
+        return Dance(
+            motion, joints, gen.fps, request.song, plan.text, files, tempo=danced.tempo, skeleton=gen.skeleton,
+            notes=danced.notes(),
+        )  # fmt: skip
 
 
 def edit_settings(edit: Edit | None, n_frames: int, fps: int) -> EditSettings:

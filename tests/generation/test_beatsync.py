@@ -119,3 +119,48 @@ def test_kinematic_speed_is_the_curve_of_the_beats():
     v = kinematic_speed(joints, fps=FPS)
     minima = np.nonzero((v[1:-1] < v[:-2]) & (v[1:-1] < v[2:]))[0] + 1
     np.testing.assert_array_equal(minima, motion_beats(joints, fps=FPS))
+
+
+def test_a_retime_that_loses_the_other_trackers_beat_is_not_kept():
+    """The dance pauses on beat set B (what a second tracker hears); the beats it is aligned to, A, lie 3 frames
+    later (a tracker off by a fifth of a beat). The retime moves the pauses onto A: better on A, worse on B. Judged
+    by A alone it is kept; judged by A and B (``check_beats``) the model's own timing is kept, and the stats say
+    so. A retime that helps on both sets is kept."""
+    from dgsdp.generation.beatsync import retime_helps, timing_margins
+
+    n = 300
+    b = np.arange(20, 280, PERIOD)
+    a = b + 3
+    motion = walking_with_pauses(np.concatenate([[5.0 - PERIOD], b, [n + 5.0]]).astype(np.float64), n)
+    stats: list[dict] = []
+    alone = sync_to_beats(motion, a, FPS, stats=stats)
+    assert stats[-1]["retimed"] == 1.0 and stats[-1]["judged_beat_sets"] == 1.0
+    assert not torch.equal(alone, motion)
+    joints, moved = (pose_to_joints(m).numpy() for m in (motion, alone))
+    before, after = timing_margins(joints, [a, b], FPS), timing_margins(moved, [a, b], FPS)
+    assert (after[:2] > before[:2]).all() and (after[2:] < before[2:]).all()  # better on A, worse on B
+    kept = sync_to_beats(motion, a, FPS, stats=stats, check_beats=[b])
+    assert torch.equal(kept, motion)
+    assert stats[-1] == {**stats[-1], "retimed": 0.0, "judged_beat_sets": 2.0, "mean_shift_ms": 0.0}
+    assert torch.equal(sync_to_beats(motion, a, FPS, settings=BeatSync(judge=False), check_beats=[b]), alone)
+    # pauses half-way between: a retime onto A that B agrees with is kept
+    late = walking_with_pauses(np.concatenate([[5.0 - PERIOD], a + 2.5, [n + 5.0]]).astype(np.float64), n)
+    helped = sync_to_beats(late, a, FPS, stats=stats, check_beats=[a + 1])
+    assert stats[-1]["retimed"] == 1.0 and not torch.equal(helped, late)
+    assert retime_helps(np.array([0.1, 0.2]), np.array([0.1, 0.3])) and not retime_helps(
+        np.array([0.1]), np.array([0.1])
+    )
+    assert not retime_helps(np.array([0.1, np.nan]), np.array([0.09, 0.5]))
+
+
+def test_a_dance_says_which_timing_beat_sync_kept():
+    from dgsdp.generation import Dance
+
+    motion = torch.zeros(2, 10, 151)
+    judged = {"beats": 4.0, "anchored_beats": 3.0, "judged_beat_sets": 2.0}
+    assert Dance(motion, 30, finishing=[{**judged, "retimed": 1.0}] * 2).notes() == [
+        "beat sync: retimed onto the song's beats"
+    ]
+    [note] = Dance(motion, 30, finishing=[{**judged, "retimed": 1.0}, {**judged, "retimed": 0.0}]).notes()
+    assert note.startswith("beat sync: the model's own timing kept in 1 of 2 dances")
+    assert Dance(motion, 30, finishing=[{"beats": 4.0, "judged_beat_sets": 0.0}]).notes() == []  # beat sync off

@@ -95,6 +95,7 @@ def test_an_smplx_model_dances_edits_and_writes_its_files(skel, tmp_path):
         3 * skel.num_joints,
     )
     assert dance.finishing[0]["beats"] > 0  # beat sync and the floor cleanup ran on this skeleton
+    assert dance.finishing[0]["judged_beat_sets"] == 2  # the retime was judged by both trackers' beats
     files = dance.save(tmp_path / "out" / "dance", formats=("npy", "pkl", "bvh", "glb"))
     assert sorted(f.suffix for f in files) == [".bvh", ".glb", ".npy", ".pkl"]
     edit = EditSettings(task="seed_motion", motion_file=str(tmp_path / "out" / "dance.npy"), seed_frames=20)

@@ -672,10 +672,10 @@ def test_prepare_leaves_out_a_song_it_cannot_write_whole(tmp_path, monkeypatch):
 
 
 def test_a_model_fed_the_independent_tracker_is_checked_against_librosas(tmp_path):
+    from dgsdp.audio import LibrosaEncoder
     from dgsdp.audio.beat_tracker import beats_of_song
     from dgsdp.audio.cache import FeatureCache
-    from dgsdp.benchmarks.realsongs.run import independent_beats
-    from dgsdp.generation.beatsync import song_beats
+    from dgsdp.generation.beatsync import other_tracker_beats, song_beats
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "generation"))
     from gen_helpers import write_click_song
@@ -683,8 +683,8 @@ def test_a_model_fed_the_independent_tracker_is_checked_against_librosas(tmp_pat
     song = tmp_path / "clicks.wav"
     write_click_song(song, 8.0, bpm=120)
     generator = SimpleNamespace(cache=FeatureCache(tmp_path / "cache"))
-    own = independent_beats(song, generator, swapped=False)
+    own = other_tracker_beats(song, generator.cache, LibrosaEncoder())
     assert np.array_equal(own.frames, beats_of_song(song).frames)  # the independent tracker
-    swapped = independent_beats(song, generator, swapped=True)
+    swapped = other_tracker_beats(song, generator.cache, LibrosaEncoder(beat_tracker="flux"))
     assert np.array_equal(swapped.frames, song_beats(song, generator.cache, None))  # librosa's tracker
     assert swapped.bpm == pytest.approx(120, rel=0.05)

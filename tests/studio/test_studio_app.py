@@ -166,6 +166,7 @@ def test_status_says_when_a_fast_song_was_given_in_half_time(studio, tmp_path):
     write_click_song(fast, 3.0, bpm=170.0)
     status = studio.on_generate(str(fast), *settings(studio), progress=no_progress)[3]
     assert "; the song: " in status and "given in half time" in status and "trained on 80-100 BPM" in status
+    assert "; beat sync: " in status  # which timing beat sync kept (docs/beatsync.md)
 
 
 def test_errors_are_one_clear_message(studio, studio_songs, tmp_path):

@@ -26,11 +26,8 @@ and one of the tempo folds. The metric functions below are plain numpy on joints
 """
 
 from dgsdp.benchmarks.realsongs.measures import (
-    BAS_VARIANTS,
-    BeatScores,
     Reference,
     SongFigures,
-    beat_scores,
     dance_figures,
     floating_fraction,
     mean_joint_speed,
@@ -63,6 +60,7 @@ from dgsdp.benchmarks.realsongs.report import (
 )
 from dgsdp.benchmarks.realsongs.run import main, run_benchmark
 from dgsdp.benchmarks.realsongs.songs import SongInfo, analyse_song, pick_varied, prepare, song_family, write_versions
+from dgsdp.metrics.beats import BAS_VARIANTS, BeatScores, beat_scores
 
 __all__ = [
     "BAS_VARIANTS", "low_phase", "phase_bins", "phase_distance", "raw_summary", "speed_by_phase",

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -16,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from dgsdp.errors import DgsdpError
-from dgsdp.metrics._common import MetricWarning, check_joints
-from dgsdp.metrics.beats import beat_alignment_from_beats, motion_beats
+from dgsdp.metrics._common import check_joints
+from dgsdp.metrics.beats import beat_scores
 from dgsdp.motion.skeleton import FOOT_JOINTS
 
 FPS = 30
@@ -107,53 +106,7 @@ def seam_ratio(
     return float(speed[frames].mean()) / overall
 
 
-# The two BAS variants, as (motion-speed smoothing sigma, score sigma) in frames at 30 FPS; the music beats are
-# librosa's tracker's on the song (the 35-d features' beat column) for both.
-BAS_VARIANTS = {
-    "bas": (2.5, 1.5),  # the project's: the reference's 60 FPS sigmas (5, 3 frames) converted through time: 50 ms
-    "bas_edge": (5.0, 3.0),  # Bailando's code as EDGE ran it on 30 FPS joints: the same numbers taken as frames
-}
 PHASE_BINS = 8  # speed by beat phase, in eighths of a beat from the beat
-
-
-@dataclass
-class BeatScores:
-    """BAS of a dance and of the same motion shifted later by ``shift_frames`` (half the median beat interval)."""
-
-    bas: float
-    shifted: float
-    shift_frames: int
-    n_music_beats: int
-
-    @property
-    def above_shifted(self) -> bool:
-        return bool(self.bas > self.shifted)
-
-
-def beat_scores(joints: np.ndarray, music_beats: Sequence[int], fps: float = FPS, variant: str = "bas") -> BeatScores:
-    """Beat alignment score (:mod:`dgsdp.metrics.beats`, Bailando's formula, the sigmas of ``variant`` in
-    :data:`BAS_VARIANTS`) of a dance and of the same motion shifted later in time by half the median interval of
-    the music beats (frame indices at ``fps``).
-
-    Shifting the motion by h frames shifts its kinematic beats by h (those that leave the dance are dropped);
-    music beats at or after the last speed sample are ignored, as in :func:`dgsdp.metrics.beats.beat_alignment`.
-    With fewer than two music beats there is no beat interval: both scores are NaN."""
-    motion_sigma, score_sigma = BAS_VARIANTS[variant]
-    positions = check_joints(joints, min_frames=2)
-    n_frames = positions.shape[0]
-    music = np.asarray(music_beats, dtype=np.int64).reshape(-1)
-    music = music[(music >= 0) & (music < n_frames - 1)]
-    if music.size < 2:
-        return BeatScores(math.nan, math.nan, 0, int(music.size))
-    shift = int(round(float(np.median(np.diff(np.sort(music)))) / 2.0))
-    beats = motion_beats(positions, fps=fps, sigma_frames=motion_sigma)
-    shifted = beats + shift
-    shifted = shifted[shifted < n_frames - 1]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", MetricWarning)  # no motion beat at all: both scores are 0
-        bas = beat_alignment_from_beats(beats, music, fps=fps, sigma_frames=score_sigma)
-        bas_shifted = beat_alignment_from_beats(shifted, music, fps=fps, sigma_frames=score_sigma)
-    return BeatScores(bas, bas_shifted, shift, int(music.size))
 
 
 def phase_bins(n_steps: int, music_beats: Sequence[int], bins: int = PHASE_BINS) -> np.ndarray:

@@ -13,17 +13,16 @@ import numpy as np
 
 from dgsdp.audio.tempo import TempoFold
 from dgsdp.benchmarks.realsongs.measures import (
-    BAS_VARIANTS,
     CHECK_NAMES,
     MIN_GENRE_SECONDS,
     PHASE_BINS,
-    BeatScores,
     Reference,
     SongFigures,
     phase_distance,
 )
 from dgsdp.benchmarks.realsongs.songs import song_family
 from dgsdp.errors import ConfigError
+from dgsdp.metrics.beats import BAS_VARIANTS, BeatScores
 
 MODEL_BEAT_FRACTION = 0.9  # the raw model above the shifted copy on at least this fraction of the dances
 
@@ -188,11 +187,14 @@ def finishing_text(n: dict[str, float]) -> str:
         return "finishing: off"
     parts = [f"finishing moved the joints {_fmt(n.get('moved_mean_cm', math.nan), '.1f')} cm on average, "
              f"{_fmt(n.get('moved_max_cm', math.nan), '.1f')} cm at most"]  # fmt: skip
-    if "anchored_beats" in n:
+    if "anchored_beats" in n and n.get("retimed", 1.0):
         parts.append(
             f"retimed {n['anchored_beats']:g}/{n['beats']:g} beats (poses moved {n['mean_shift_ms']:.0f} ms on average, "
             f"{n['max_shift_ms']:.0f} ms at most)"
         )
+    elif "anchored_beats" in n and n.get("judged_beat_sets"):
+        parts.append(f"beat sync kept the model's timing (the retime onto {n['anchored_beats']:g}/{n['beats']:g} "
+                     f"beats was worse on one of {n['judged_beat_sets']:g} trackers' beats)")  # fmt: skip
     limits = [f"{k.removesuffix('_frames').replace('_', ' ')} {n[k]:g}" for k in LIMIT_KEYS if k in n]
     if limits:
         parts.append("frames touched: " + ", ".join(limits))
@@ -321,6 +323,10 @@ def independent_summary(results: Sequence[SongResult]) -> str:
             + ")"
             + (f" target={'pass' if met else 'FAIL'}" if stage == "raw" else "")
         )
+    judged = [r for r in results if r.finishing and r.finishing.get("judged_beat_sets")]
+    if judged:
+        kept = sum(bool(r.finishing.get("retimed")) for r in judged)
+        parts.append(f"beat sync kept the retime on {kept}/{len(judged)} dances (the model's timing on the others)")
     return "; ".join(parts)
 
 

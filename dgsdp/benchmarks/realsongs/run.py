@@ -18,12 +18,10 @@ from dgsdp.audio.beat_tracker import (
     AGREE_F_MEASURE,
     TEMPO_TOLERANCE,
     TrackedBeats,
-    beats_of_song,
     bpm_of_beats,
     trackers_agree,
 )
 from dgsdp.benchmarks.realsongs.measures import (
-    BAS_VARIANTS,
     FLOATING_HEIGHT_M,
     FLOATING_MAX_FRACTION,
     MIN_GENRE_SECONDS,
@@ -34,7 +32,6 @@ from dgsdp.benchmarks.realsongs.measures import (
     SPEED_RATIO_RANGE,
     Reference,
     _no_nan,
-    beat_scores,
     dance_figures,
     training_dances_passing,
     training_figures,
@@ -58,6 +55,7 @@ from dgsdp.benchmarks.realsongs.report import (
 )
 from dgsdp.benchmarks.realsongs.songs import DEBIAN_MUSIC_DIRS, MIN_SONG_SECONDS, prepare
 from dgsdp.errors import ConfigError, DgsdpError
+from dgsdp.metrics.beats import BAS_VARIANTS, beat_scores
 
 
 def run_benchmark(
@@ -81,7 +79,7 @@ def run_benchmark(
     from dgsdp.cli.config import compose_config
     from dgsdp.cli.generate import generate_settings
     from dgsdp.generation import find_songs, write_motion
-    from dgsdp.generation.beatsync import song_beats
+    from dgsdp.generation.beatsync import fed_beat_tracker, other_tracker_beats, song_beats
     from dgsdp.generation.songs import SongDancer
     from dgsdp.motion import pose_to_joints, smpl24_layout
 
@@ -119,7 +117,7 @@ def run_benchmark(
     plans: dict[str | None, Any] = {}
     tracked: dict[Path, TrackedBeats] = {}
     # a model fed the independent tracker's beats (audio.beat_tracker=flux) is checked against librosa's instead
-    swapped = getattr(generator.audio_encoder, "beat_tracker", "librosa") == "flux"
+    swapped = fed_beat_tracker(generator.audio_encoder) == "flux"
     first: dict[Path, tuple[Path, str | None]] = {}
     for pair in dances:
         first.setdefault(pair[0], pair)
@@ -190,7 +188,7 @@ def run_benchmark(
             result.checks = result.figures.checks(result.reference)
             result.raw_checks = result.raw.checks(result.reference)
             if song not in tracked:  # the independent tracker's beats, once per song
-                tracked[song] = independent_beats(song, generator, swapped)
+                tracked[song] = other_tracker_beats(song, generator.cache, generator.audio_encoder)
             independent = tracked[song]
             agree, f = trackers_agree(TrackedBeats(bpm_of_beats(beats), np.asarray(beats)), independent)
             result.tracking = Tracking(bpm_of_beats(beats), independent.bpm, agree, f)
@@ -296,17 +294,6 @@ def run_benchmark(
         }
         atomic_write_text(json_path, json.dumps(_no_nan(payload), indent=2, allow_nan=False) + "\n")
     return results
-
-
-def independent_beats(song: Path, generator: Any, swapped: bool) -> TrackedBeats:
-    """The beats of a tracker other than the one whose beats the model is fed: the independent tracker's
-    (:mod:`dgsdp.audio.beat_tracker`), or librosa's for a model fed the independent tracker's (``swapped``)."""
-    if not swapped:
-        return beats_of_song(song)
-    from dgsdp.generation.beatsync import song_beats
-
-    frames = np.asarray(song_beats(song, generator.cache, None))  # the default librosa features: librosa's tracker
-    return TrackedBeats(bpm_of_beats(frames), frames)
 
 
 def _limits(reference: Reference) -> dict[str, Any]:
