@@ -49,7 +49,8 @@ BUILTINS: dict[str, dict[str, str]] = {
     "diffusion": _names("dgsdp.diffusion.GaussianDiffusion", "dgsdp.diffusion.gaussian", "GaussianDiffusion"),
     "loss": _names("dgsdp.diffusion.LossWeights", "dgsdp.diffusion.losses", "LossWeights"),
     "optimizer": {
-        "adan_pytorch.Adan": "adan_pytorch:Adan",
+        **_names("dgsdp.training.Adan", "dgsdp.training.optim", "Adan"),
+        "adan_pytorch.Adan": "dgsdp.training.optim:Adan",  # runs before it was ours: the same update and state
         "torch.optim.AdamW": "torch.optim:AdamW",
         "torch.optim.adamw.AdamW": "torch.optim:AdamW",
     },

@@ -4,8 +4,10 @@
                                         [--compile] [--gradient-checkpointing]
 
 Runs full training steps (diffusion loss with FK and foot terms, backward, Adan step, EMA update) of the real
-LightningModule on random 5 s windows, without data loading. FLOPs of one step are counted with
-``torch.utils.flop_counter.FlopCounterMode`` (matrix products and attention, forward and backward; recomputation
+LightningModule on random 5 s windows, without data loading. The update alone (Adan step and EMA update, as the
+training module runs them: :mod:`dgsdp.training.optim`) is timed beside the per-parameter loops the project ran
+before (adan-pytorch's Adan and AveragedModel's update) on the same weights and gradients: "update ms" and the
+ratio. FLOPs of one step are counted with ``torch.utils.flop_counter.FlopCounterMode`` (matrix products and attention, forward and backward; recomputation
 by activation checkpointing not counted, so MFU stays a model-FLOPs figure). MFU = achieved FLOP/s / the
 device's dense peak for the precision used: bf16 with ``--bf16`` (default on CUDA), TF32 for float32 matmuls at
 precision "high" (set on CUDA, as in training), from the vendors' spec sheets (:data:`PEAK_TFLOPS`). On a CPU
@@ -22,6 +24,7 @@ import torch
 
 from dgsdp.trained.spec import RunSpec
 from dgsdp.training.module import DanceDiffusion
+from dgsdp.training.optim import ema_update
 
 # Dense (no sparsity) peak tensor TFLOP/s from NVIDIA's spec sheets: (bf16, tf32, fp32 without tensor cores).
 # Matched against torch.cuda.get_device_name() in this order (more specific names first).
@@ -88,7 +91,7 @@ def bench(
         loss.backward()
         optimizer.step()
         optimizer.zero_grad(set_to_none=True)
-        model.ema.update_parameters(model.denoiser)
+        ema_update(model.ema, model.denoiser, model.spec.ema_decay, first=False)
 
     from torch.utils.flop_counter import FlopCounterMode
 
@@ -115,7 +118,10 @@ def bench(
         peak_gib = torch.cuda.max_memory_allocated(device) / 2**30
     else:
         peak_gib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # process peak RSS (KiB -> GiB)
+    update_s, reference_s = time_updates(model, optimizer, data, steps)
     result = {
+        "update_ms": 1000 * update_s,
+        "reference_update_ms": 1000 * reference_s,
         "params_M": sum(p.numel() for p in model.denoiser.parameters()) / 1e6,
         "samples_per_s": batch / seconds,
         "step_s": seconds,
@@ -128,6 +134,45 @@ def bench(
         result["peak_tflops"] = peak
         result["mfu_percent"] = 100 * result["achieved_tflops"] / peak
     return result
+
+
+def time_updates(
+    model: DanceDiffusion, optimizer: torch.optim.Optimizer, data: dict[str, torch.Tensor], steps: int
+) -> tuple[float, float]:
+    """Seconds of one weight update (Adan step and EMA update) as training runs it, and as adan-pytorch's Adan and
+    AveragedModel's update ran it, on the model's weights with the gradients of one more step."""
+    from adan_pytorch import Adan as LoopAdan
+
+    loss = model._loss(model.denoiser, data, train=True)["loss"]
+    loss.backward()
+    group = optimizer.param_groups[0]
+    loop = LoopAdan(model.denoiser.parameters(), lr=group["lr"], betas=group["betas"], eps=group["eps"],
+                    weight_decay=group["weight_decay"])  # fmt: skip
+
+    def ours() -> None:
+        optimizer.step()
+        ema_update(model.ema, model.denoiser, model.spec.ema_decay, first=False)
+
+    def theirs() -> None:
+        loop.step()
+        model.ema.update_parameters(model.denoiser)
+
+    out = []
+    for update in (ours, theirs, ours, theirs):  # each twice, interleaved: a warm-up and the timed runs
+        update()
+        sync(model.device)
+        start = time.perf_counter()
+        for _ in range(steps):
+            update()
+        sync(model.device)
+        out.append((time.perf_counter() - start) / steps)
+    optimizer.zero_grad(set_to_none=True)
+    return min(out[0], out[2]), min(out[1], out[3])
+
+
+def sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -154,7 +199,7 @@ def main(argv: list[str] | None = None) -> None:
         print("MFU: n/a on CPU (no reliable peak figure); peak memory = the process's peak resident set size")
     print(
         f"{'model':<7}{'params':>9}{'samples/s':>11}{'step s':>9}{'TFLOP/step':>12}{'TFLOP/s':>9}{'peak GiB':>10}"
-        f"{'device peak TFLOP/s':>21}{'MFU %':>7}"
+        f"{'device peak TFLOP/s':>21}{'MFU %':>7}{'update ms':>11}{'loop ms':>9}{'ratio':>7}"
     )
     for model_name in args.models:
         r = bench(model_name, device, batch, args.steps, bf16, args.compile, args.gradient_checkpointing)
@@ -163,7 +208,9 @@ def main(argv: list[str] | None = None) -> None:
         print(
             f"{model_name:<7}{r['params_M']:>8.2f}M{r['samples_per_s']:>11.1f}{r['step_s']:>9.3f}"
             f"{r['tflops_per_step']:>12.3f}{r['achieved_tflops']:>9.2f}{r['peak_memory_gib']:>10.2f}{peak:>21}{mfu:>7}"
+            f"{r['update_ms']:>11.2f}{r['reference_update_ms']:>9.2f}{r['reference_update_ms'] / r['update_ms']:>6.1f}x"
         )
+    print("update ms: Adan step + EMA update as training runs them; loop ms: adan-pytorch's Adan + AveragedModel")
 
 
 if __name__ == "__main__":

@@ -380,7 +380,7 @@ class RunSpec:
         """Raise one CheckpointError listing every difference that stops ``other`` (the configured run) from
         resuming this checkpoint's run: architecture and optimiser."""
         diffs = _diff(self.architecture(), other.architecture(), "")
-        diffs += _diff(self.optimizer, other.optimizer, "optimizer.")
+        diffs += _diff(_same_optimizer(self.optimizer), _same_optimizer(other.optimizer), "optimizer.")
         if diffs:
             raise CheckpointError(
                 f"checkpoint {source} was trained with a different configuration:\n  "
@@ -397,6 +397,18 @@ def check_size(name: str, value: Any) -> None:
     limit = MAX_SIZES.get(name.rpartition(".")[2], MAX_OTHER_SETTING)
     if value > limit:
         raise ConfigError(f"{name}={value:,} is larger than any model this project builds (at most {limit:,})")
+
+
+SAME_OPTIMIZERS = {"adan_pytorch.Adan": "dgsdp.training.Adan"}
+"""Optimiser targets of earlier runs -> today's class with the same update and state (a run resumes under it)."""
+
+
+def _same_optimizer(node: Mapping[str, Any]) -> dict[str, Any]:
+    """An optimiser config with its target named as today's (:data:`SAME_OPTIMIZERS`) and its lists as tuples."""
+    out = {k: tuple(v) if isinstance(v, list) else v for k, v in node.items()}
+    if out.get("_target_") in SAME_OPTIMIZERS:
+        out["_target_"] = SAME_OPTIMIZERS[out["_target_"]]
+    return out
 
 
 def _diff(a: Mapping[str, Any], b: Mapping[str, Any], prefix: str) -> list[str]:
@@ -451,7 +463,7 @@ def _upgrade_format1(data: dict[str, Any], source: str) -> dict[str, Any]:
     optimizer = dict(data["optimizer"])
     name = optimizer.pop("name", "adan")
     optimizer = {
-        "_target_": {"adan": "adan_pytorch.Adan", "adamw": "torch.optim.AdamW"}.get(name, name),
+        "_target_": {"adan": "dgsdp.training.Adan", "adamw": "torch.optim.AdamW"}.get(name, name),
         "_partial_": True,
         **optimizer,
     }

@@ -13,6 +13,7 @@ from dgsdp.diffusion import dance_loss
 from dgsdp.registry import Source
 from dgsdp.trained.model import CHECKPOINT_FORMAT, TrainedModel, plain
 from dgsdp.trained.spec import RunSpec
+from dgsdp.training.optim import ema_steps, ema_update
 
 
 def step_seed(seed: int, step: int, rank: int = 0, world_size: int = 1) -> int:
@@ -30,6 +31,7 @@ class DanceDiffusion(TrainedModel, L.LightningModule):
         super().__init__(spec, source)
         self.save_hyperparameters(plain(self.spec.to_dict()))
         self.loss_weights = self.spec.build_loss(source)
+        self._ema_first: bool | None = None  # whether the next EMA update is its first (read once from the EMA)
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint["hyper_parameters"] = plain(dict(self.hparams))
@@ -90,8 +92,12 @@ class DanceDiffusion(TrainedModel, L.LightningModule):
 
     def optimizer_step(self, *args: Any, **kwargs: Any) -> None:
         super().optimizer_step(*args, **kwargs)
-        # Right after the weights change, so a checkpoint saved at the end of this batch includes this update.
-        self.ema.update_parameters(self.denoiser)
+        # Right after the weights change, so a checkpoint saved at the end of this batch includes this update. Whether
+        # it is the EMA's first update is read from the device once (a fresh or a resumed run), not every step.
+        if self._ema_first is None:
+            self._ema_first = ema_steps(self.ema) == 0
+        ema_update(self.ema, self.denoiser, self.spec.ema_decay, first=self._ema_first)
+        self._ema_first = False
 
     def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:
         gen = torch.Generator(device=batch["motion"].device).manual_seed(batch_idx)

@@ -52,7 +52,7 @@ def test_resume_with_another_optimizer_or_size_lists_every_difference(tmp_path, 
             f"ckpt_path={first['checkpoint']}",
         )  # fmt: skip
     text = str(info.value)
-    assert "optimizer._target_: checkpoint 'adan_pytorch.Adan', config 'torch.optim.AdamW'" in text
+    assert "optimizer._target_: checkpoint 'dgsdp.training.Adan', config 'torch.optim.AdamW'" in text
     assert "ff_dim" in text
 
 
