@@ -12,6 +12,12 @@ features of 5 s windows, fitted on the training split's dances):
   ``dgsdp/resources/style_heldout/aistpp.yaml``, which nothing trains on), classified as the genre they describe;
   ``--heldout aistpp_second`` takes a second list, written after generate.py's text-reading temperature was chosen
   on the first;
+- **speed rank**: the Spearman correlation, over the genres, of each genre's training speed with the mean speed of
+  the dances asked in it (does a faster genre get a faster dance?);
+- **modifier pairs**: for every genre, on its first held-out clip with one seed, a description with a speed or
+  energy word and its opposite (:data:`MODIFIER_PAIRS`: "slow krump" / "fast krump", "gentle krump" /
+  "explosive krump", "slow gentle krump" / "fast explosive krump"); a pair is ordered right when the faster word's
+  dance has the higher mean joint speed;
 - **a style schedule**: two genres, 10 s each, on held-out songs; the accuracy of each span's 5 s windows (away
   from the 2 s blend) and how many frames the switch takes (2 s windows classified every 5 frames);
 - **real songs** (``--songs DIR``, a folder of songs, e.g. one made by ``python -m dgsdp.benchmarks.realsongs
@@ -19,7 +25,8 @@ features of 5 s windows, fitted on the training split's dances):
 
 The ground truth's accuracy (the test split's real dances, the same clips) is printed beside. The last line::
 
-    style_acc=<raw genre accuracy> text_acc=<raw free-text accuracy> genre_speed_within_30pct=<n>/10 gt_acc=<gt>
+    style_acc=<raw genre accuracy> text_acc=<raw free-text accuracy> genre_speed_within_30pct=<n>/10
+    speed_spearman=<raw speed rank correlation> modifiers=<raw fraction of pairs ordered right> gt_acc=<gt>
 
 With several checkpoints (one per training seed) each is measured in turn and the last line gives the means.
 """
@@ -39,8 +46,8 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from dgsdp.benchmarks.realsongs.measures import mean_joint_speed
 from dgsdp.errors import ConfigError, DgsdpError
+from dgsdp.metrics.speed import mean_joint_speed
 from dgsdp.motion import SMPL24, Skeleton
 from dgsdp.resources import RESOURCES_DIR
 
@@ -56,6 +63,9 @@ SCHEDULE_SPAN_SECONDS = 10.0
 BLEND_WINDOW_SECONDS = 2.0
 BLEND_GRID_FRAMES = 5
 VARIANTS = ("raw", "finished")
+MODIFIER_PAIRS = (("slow {genre}", "fast {genre}"), ("gentle {genre}", "explosive {genre}"),
+                  ("slow gentle {genre}", "fast explosive {genre}"))  # fmt: skip
+"""(slower, faster) phrasings of each genre's name: the modifier check's descriptions."""
 
 
 # --- pure measures (tested on hand-made figures) ------------------------------------------------------------------
@@ -82,6 +92,27 @@ def speed_ratios(
         if mine.size and train > 0:
             out[g] = float(mine.mean() / train)
     return out
+
+
+def speed_rank_correlation(
+    speeds: Sequence[float], genres: Sequence[int], train_speed_by_genre: dict[int, float]
+) -> float:
+    """Spearman's rank correlation, over the genres with dances, of each genre's training speed with the mean speed
+    of its dances (NaN with fewer than three genres)."""
+    from scipy.stats import spearmanr
+
+    speeds_arr, genres_arr = np.asarray(speeds, dtype=np.float64), np.asarray(genres)
+    pairs = [(train, float(speeds_arr[genres_arr == g].mean())) for g, train in sorted(train_speed_by_genre.items())
+             if (genres_arr == g).any()]  # fmt: skip
+    if len(pairs) < 3:
+        return math.nan
+    return float(spearmanr([a for a, _ in pairs], [b for _, b in pairs]).statistic)
+
+
+def ordered_right(slower: Sequence[float], faster: Sequence[float]) -> float:
+    """The fraction of pairs whose faster-worded dance has the higher mean joint speed."""
+    pairs = list(zip(slower, faster, strict=True))
+    return float(np.mean([f > s for s, f in pairs])) if pairs else math.nan
 
 
 def within(ratio: float, tolerance: float = SPEED_TOLERANCE) -> bool:
@@ -271,11 +302,8 @@ class StyleBenchmark:
             "checkpoint": self.checkpoint,
             "data_root": str(self.data_root),
             "sampling": dataclasses.asdict(self.job.sampling),
-            # how free text was read (generate.py's style_text_temperature and style_text_descriptions)
-            "text_reading": {
-                "temperature": self.generator.text_temperature,
-                "descriptions": self.generator.text_descriptions,
-            },
+            # how free text was read (generate.py's style_text_reading, _temperature and _descriptions)
+            "text_reading": dataclasses.asdict(self.generator.text_choice),
             "heldout_descriptions": self.heldout_file.name,
             "genres": list(self.vocab.codes),
             "n_clips": len(clips),
@@ -292,14 +320,19 @@ class StyleBenchmark:
                 "confusion": confusion_matrix(genres, predicted, len(self.vocab)).tolist(),
                 "speed_ratio": {self.vocab.codes[g]: r for g, r in ratios.items()},
                 "genre_speed_within": sum(within(r) for r in ratios.values()),
+                "speed_spearman": speed_rank_correlation(speeds, genres, train_speed),
             }
 
         stage("held-out descriptions")
         if self.generator.embedder().kind not in ("genre", "prompt"):  # one-hot: genre codes only, no free text
             for name in dances:
-                result[name].update(text_acc=math.nan, text_acc_named=math.nan, text_acc_unnamed=math.nan)
+                result[name].update(
+                    text_acc=math.nan, text_acc_named=math.nan, text_acc_unnamed=math.nan, modifiers_right=math.nan
+                )
         else:
             self._free_text(result, requests, genres, beats, judge)
+            stage("modifier pairs")
+            self._modifiers(result, requests, genres, beats)
         bar.update()
 
         stage("style schedules")
@@ -334,6 +367,30 @@ class StyleBenchmark:
             result[name]["text_acc"] = accuracy(text_genres, predicted)
             result[name]["text_acc_named"] = accuracy(np.asarray(text_genres)[named_arr], predicted[named_arr])
             result[name]["text_acc_unnamed"] = accuracy(np.asarray(text_genres)[~named_arr], predicted[~named_arr])
+
+    def _modifiers(self, result: dict[str, Any], requests: list[Any], genres: list[int], beats: list[Any]) -> None:
+        """Each genre's first clip asked with each of :data:`MODIFIER_PAIRS`, one seed: the fraction of pairs whose
+        faster-worded dance moves faster, and each pair's speeds."""
+        firsts = {g: k for k, g in reversed(list(enumerate(genres)))}
+        pair_requests, pair_beats, rows = [], [], []
+        for g, k in sorted(firsts.items()):
+            name = self.vocab.names[g].lower()
+            for slow, fast in MODIFIER_PAIRS:
+                texts = (slow.format(genre=name), fast.format(genre=name))
+                for text in texts:
+                    pair_requests.append(
+                        dataclasses.replace(requests[k], style=self.generator.embed_style(f"text: {text}"))
+                    )
+                    pair_beats.append(beats[k])
+                rows.append({"genre": self.vocab.codes[g], "slower": texts[0], "faster": texts[1]})
+        dances = self._sample(pair_requests, pair_beats)
+        for name, joints in dances.items():
+            speeds = [mean_joint_speed(j, self.fps) for j in joints]
+            slower, faster = speeds[0::2], speeds[1::2]
+            result[name]["modifiers_right"] = ordered_right(slower, faster)
+            result[name]["modifier_pairs"] = [
+                {**row, "slower_m_s": a, "faster_m_s": b} for row, a, b in zip(rows, slower, faster, strict=True)
+            ]
 
     def _train_speeds(self, train: list[Any]) -> dict[int, float]:
         """Mean joint speed over every frame of each genre's training dances."""
@@ -490,6 +547,8 @@ def report_lines(result: dict[str, Any]) -> list[str]:
         f"{'  naming the genre':28s}{both('text_acc_named')}",
         f"{'  movement only':28s}{both('text_acc_unnamed')}",
         f"{'genres within 30% of speed':28s}{count(raw):>8s}{count(fin):>10s}",
+        f"{'speed rank correlation':28s}{both('speed_spearman')}   (Spearman, genres' training speed vs danced)",
+        f"{'modifier pairs right':28s}{both('modifiers_right')}   (slow/fast, gentle/explosive: faster word faster)",
         "speed over the genre's own training dances (raw/finished): "
         + "  ".join(f"{c} {ratio(raw, c)}/{ratio(fin, c)}" for c in codes),
     ]
@@ -528,14 +587,19 @@ def report_lines(result: dict[str, Any]) -> list[str]:
 
 
 def last_line(results: Sequence[dict[str, Any]]) -> str:
-    """``style_acc=... text_acc=... genre_speed_within_30pct=n/10 gt_acc=...`` of the raw model (means over the
-    checkpoints; the genre count rounded down)."""
+    """``style_acc=... text_acc=... genre_speed_within_30pct=n/10 speed_spearman=... modifiers=... gt_acc=...`` of
+    the raw model (means over the checkpoints; the genre count rounded down)."""
     raw = [r["raw"] for r in results]
     n_genres = len(results[0]["genres"])
     within_mean = float(np.mean([r["genre_speed_within"] for r in raw]))
+
+    def mean(key: str) -> float:
+        return float(np.mean([r.get(key, math.nan) for r in raw]))
+
     return (
-        f"style_acc={np.mean([r['genre_acc'] for r in raw]):.3f} text_acc={np.mean([r['text_acc'] for r in raw]):.3f} "
+        f"style_acc={mean('genre_acc'):.3f} text_acc={mean('text_acc'):.3f} "
         f"genre_speed_within_30pct={math.floor(within_mean)}/{n_genres} "
+        f"speed_spearman={mean('speed_spearman'):.3f} modifiers={mean('modifiers_right'):.3f} "
         f"gt_acc={np.mean([r['gt_acc'] for r in results]):.3f}"
     )
 

@@ -20,7 +20,7 @@ from dgsdp.cli.runtime import run_main
 from dgsdp.editing import check_task
 from dgsdp.errors import ConfigError
 from dgsdp.export import check_formats
-from dgsdp.generation.pipeline import TEXT_READING_OFF, EditSettings, Finishing
+from dgsdp.generation.pipeline import TEXT_READING_OFF, EditSettings, Finishing, TextReadingChoice
 from dgsdp.generation.songs import GenerateSettings, GenerationReport, dance_songs
 from dgsdp.sampling import SamplingSettings
 
@@ -73,17 +73,18 @@ def finishing_settings(node: Any) -> Finishing:
     return Finishing(**values)
 
 
-def text_temperature_setting(value: Any) -> float | str | None:
-    """generate.py's ``style_text_temperature``: null (the checkpoint's choice), ``off`` or a number."""
-    if value is None or value is False or str(value).strip().lower() == TEXT_READING_OFF:
-        return None if value is None else TEXT_READING_OFF
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(
-            f"style_text_temperature must be a positive number, off (the text's own embedding) or null (the "
-            f"checkpoint's choice), got {value!r}"
-        ) from None
+def text_reading_setting(cfg: DictConfig) -> TextReadingChoice | None:
+    """generate.py's ``style_text_reading``, ``style_text_temperature`` and ``style_text_descriptions``: None (all
+    null: the checkpoint's choice) or a checked choice (YAML 1.1 reads ``off`` as false)."""
+    how, temperature = cfg.get("style_text_reading"), cfg.get("style_text_temperature")
+    descriptions = cfg.get("style_text_descriptions")
+    how = TEXT_READING_OFF if how is False else how
+    temperature = TEXT_READING_OFF if temperature is False else temperature
+    if how is None and temperature is None and descriptions is None:
+        return None
+    return TextReadingChoice.make(
+        None if how is None else str(how), temperature, None if descriptions is None else str(descriptions)
+    )
 
 
 def generate_settings(cfg: DictConfig) -> GenerateSettings:
@@ -115,10 +116,7 @@ def generate_settings(cfg: DictConfig) -> GenerateSettings:
         finishing=finishing_settings(cfg.get("finishing")),
         seconds=None if cfg.seconds is None else float(cfg.seconds),
         blend_seconds=float(cfg.schedule_blend_seconds),
-        style_text_temperature=text_temperature_setting(cfg.get("style_text_temperature")),
-        style_text_descriptions=None
-        if cfg.get("style_text_descriptions") is None
-        else str(cfg.style_text_descriptions),
+        style_text=text_reading_setting(cfg),
         num_samples=int(cfg.num_samples),
         seed=int(cfg.seed),
         progress=bool(cfg.progress),

@@ -34,6 +34,7 @@ class DenoiserConfig:
     style_standardize: float | None = None
     guidance_inputs: int = 0
     gradient_checkpointing: bool = False
+    speed_conditioning: bool = False
     ema_decay: float = 0.9999
 
 

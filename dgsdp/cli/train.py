@@ -139,7 +139,9 @@ def train(cfg: DictConfig) -> dict[str, Any]:
 
     audio_encoder = audio_encoder_from_config(cfg)
     style_embedder = style_embedder_from_config(cfg)
-    datamodule = instantiate(cfg.data, audio_encoder=audio_encoder)
+    # a model conditioned on speed reads each training window's mean joint speed
+    speed = bool((cfg.get("model") or {}).get("speed_conditioning", False))
+    datamodule = instantiate(cfg.data, audio_encoder=audio_encoder, window_speeds=speed)
     datamodule.prepare_data()
     datamodule.setup("fit")
     bank = style_embedder.bank() if style_embedder is not None and style_embedder.dim else None
@@ -168,6 +170,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         model.set_floor_height(datamodule.floor_height)
     model.set_tempo_range(getattr(datamodule, "tempo_range_bpm", None))  # the songs' tempi (sampling.tempo_fold)
     model.set_style_bank(bank)
+    if speed:  # the training windows' speeds: what generation asks each genre for (docs/style.md)
+        model.set_speed_statistics(datamodule.speed_quantiles, datamodule.speed_reference)
     n_params = sum(p.numel() for p in model.denoiser.parameters())
     log.info("denoiser: %.2fM parameters", n_params / 1e6)
 

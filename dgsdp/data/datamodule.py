@@ -27,7 +27,8 @@ from dgsdp.audio import AudioEncoder, FeatureCache, load_audio
 from dgsdp.audio.tempo import training_tempo_range
 from dgsdp.data.aistpp import check_root, load_motion_pkl, music_path, parse_name, process_motion, read_split
 from dgsdp.errors import ConfigError, DataError, DgsdpError
-from dgsdp.motion import MinMaxNormalizer, measure_floor_height, skeleton_from_config
+from dgsdp.metrics.speed import SPEED_QUANTILES, frame_speeds
+from dgsdp.motion import MinMaxNormalizer, Skeleton, measure_floor_height, skeleton_from_config
 from dgsdp.motion.representation import CONTACT_CHANNELS
 from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
 from dgsdp.utils.io import DiskCache, file_hash
@@ -56,6 +57,7 @@ class Sequence:
     music_id: str
     motion: np.ndarray
     audio: np.ndarray | None  # (T_audio, D) features at 30 FPS, or (samples,) waveform, or None
+    speed: np.ndarray | None = None  # (T-1,) mean joint speed (m/s) of each step; with ``window_speeds``
 
 
 @dataclass(frozen=True)
@@ -241,9 +243,9 @@ class WindowDataset(Dataset):
     def __getitem__(self, i: int) -> dict[str, Any]:
         seq_i, start = self.index[i]
         seq = self.sequences[seq_i]
-        audio = None
+        audio, rate = None, 1.0
         if self.tempo_range is not None and seq.audio is not None and self.waveform_sample_rate is None:
-            start, motion, audio = self._stretched(seq, start)
+            start, motion, audio, rate = self._stretched(seq, start)
         else:
             motion = torch.from_numpy(seq.motion[start : start + self.length])
         item: dict[str, Any] = {
@@ -253,6 +255,8 @@ class WindowDataset(Dataset):
             "name": seq.name,
             "start": start,
         }
+        if seq.speed is not None:  # the window's mean joint speed (model.speed_conditioning)
+            item["speed"] = torch.tensor(self.window_speed(seq, start, rate), dtype=torch.float32)
         if audio is not None:
             item["audio"] = audio
         elif seq.audio is not None:
@@ -260,14 +264,20 @@ class WindowDataset(Dataset):
             item["audio"] = torch.from_numpy(np.array(self._audio_window(seq.audio, start), dtype=np.float32))
         return item
 
-    def _stretched(self, seq: Sequence, start: int) -> tuple[int, torch.Tensor, torch.Tensor]:
+    def window_speed(self, seq: Sequence, start: int, rate: float = 1.0) -> float:
+        """The mean joint speed (m/s) of the window at ``start`` played at ``rate`` (its source span's speed, ``rate``
+        times faster)."""
+        span = max(1, math.ceil((self.length - 1) * rate))
+        return float(seq.speed[start : start + span].mean()) * rate
+
+    def _stretched(self, seq: Sequence, start: int) -> tuple[int, torch.Tensor, torch.Tensor, float]:
         """The window at ``start`` played at a random tempo: ``rate`` in ``tempo_range`` drawn log-uniformly from
         torch's generator (seeded with the run), and ``(length - 1) * rate`` source frames resampled to ``length``
         (rate 1.25: the dance and its music 25% faster). Motion and continuous feature columns are interpolated
         linearly between neighbouring frames (6D rotations too: neighbouring frames are close), the foot contacts
         rounded back to 0/1, and each binary feature column (onset peaks, beats) keeps its events, each moved to
         its nearest new frame. A window that would run past the end of its sequence starts earlier; a sequence
-        too short for the rate keeps rate 1. Returns (start, motion (length, 151), features (length, F))."""
+        too short for the rate keeps rate 1. Returns (start, motion (length, 151), features (length, F), rate)."""
         lo, hi = self.tempo_range
         rate = lo * (hi / lo) ** float(torch.rand(()))
         audio = np.asarray(seq.audio)
@@ -291,7 +301,39 @@ class WindowDataset(Dataset):
             for column in np.flatnonzero(binary):
                 features[:, column] = 0.0
                 features[target[keep & (audio[source, column] == 1)], column] = 1.0
-        return start, torch.from_numpy(motion.astype(np.float32)), torch.from_numpy(features.astype(np.float32))
+        motion_t, features_t = (
+            torch.from_numpy(motion.astype(np.float32)),
+            torch.from_numpy(features.astype(np.float32)),
+        )
+        return start, motion_t, features_t, rate
+
+
+def add_speeds(sequences: list[Sequence], skeleton: Skeleton, fps: int) -> None:
+    """Give each sequence (that has none yet) the mean joint speed of each step between its frames, (T-1,) m/s,
+    measured on its joints in SMPL's 24-joint layout (as the style benchmark measures a dance's speed)."""
+    from dgsdp.motion import pose_to_joints, smpl24_layout
+
+    layout = smpl24_layout(skeleton)
+    for seq in sequences:
+        if seq.speed is None and len(seq.motion) >= 2:
+            joints = pose_to_joints(torch.from_numpy(np.asarray(seq.motion, dtype=np.float32)), skeleton)
+            seq.speed = frame_speeds(joints.numpy()[:, layout], fps).astype(np.float32)
+
+
+def speed_quantiles(dataset: WindowDataset, n_genres: int) -> tuple[np.ndarray, float]:
+    """The quantiles 0, 0.1, ..., 1 of each genre's training windows' mean joint speeds (m/s, at their own tempo),
+    (n_genres, SPEED_QUANTILES) with NaN for a genre without windows, and the median of all the windows' speeds."""
+    by_genre: dict[int, list[float]] = {}
+    for seq_i, start in dataset.index:
+        seq = dataset.sequences[seq_i]
+        by_genre.setdefault(seq.genre_index, []).append(dataset.window_speed(seq, start))
+    out = np.full((n_genres, SPEED_QUANTILES), np.nan, dtype=np.float32)
+    levels = np.linspace(0.0, 1.0, SPEED_QUANTILES)
+    for genre, speeds in by_genre.items():
+        if 0 <= genre < n_genres:
+            out[genre] = np.quantile(np.asarray(speeds, dtype=np.float64), levels)
+    every = [v for speeds in by_genre.values() for v in speeds]
+    return out, float(np.median(every)) if every else math.nan
 
 
 def distributed_rank_world() -> tuple[int, int]:
@@ -438,9 +480,15 @@ class DanceDataModule(L.LightningDataModule):
         tempo_augment: tuple[float, float] | None = None,
         skeleton: str = "smpl24",
         smplx_file: str | None = None,
+        window_speeds: bool = False,
     ) -> None:
         super().__init__()
         self.skeleton = skeleton_from_config(skeleton, smplx_file, option="data.smplx_file")
+        # each window's mean joint speed in its batch, for a model conditioned on it (train.py sets this when
+        # model.speed_conditioning is on); the training windows' speeds per genre are measured in setup()
+        self.window_speeds = bool(window_speeds)
+        self.speed_quantiles: np.ndarray | None = None  # (genres, SPEED_QUANTILES) m/s, in setup()
+        self.speed_reference: float | None = None  # the median window's speed (m/s), in setup()
         if self.skeleton.name not in self.skeletons:
             raise ConfigError(
                 f"data.skeleton={skeleton}: {type(self).__name__} reads {' or '.join(self.skeletons)} motion "
@@ -547,6 +595,9 @@ class DanceDataModule(L.LightningDataModule):
             log.info("floor height of the training motions: %.3f m", self.floor_height)
         if self.tempo_range_bpm is None:
             self.tempo_range_bpm = training_tempo_range([s.music_id for s in train], self.tempo_augment)
+        if self.window_speeds:
+            for name in ("train", "val", "test"):
+                add_speeds(self.sequences(name), self.skeleton, self.fps)
         wanted = {
             "fit": ("train", "val"),
             "validate": ("val",),
@@ -578,6 +629,8 @@ class DanceDataModule(L.LightningDataModule):
                     f"{self.length / self.fps:.1f} s; use shorter windows (data.window_seconds)"
                 )
             self.datasets[name] = ds
+            if name == "train" and self.window_speeds and self.speed_quantiles is None:
+                self.speed_quantiles, self.speed_reference = speed_quantiles(ds, len(self.vocab))
 
     def _loader(self, name: str, shuffle: bool) -> DataLoader:
         dataset = self.datasets[name]

@@ -14,6 +14,7 @@ import torch
 from dgsdp.audio.tempo import TempoFold
 from dgsdp.motion import SMPL24, Skeleton, check_pose_dim, pose_to_joints, unpack_pose
 from dgsdp.motion.rotation import matrix_to_axis_angle
+from dgsdp.style.reading import TextReading
 from dgsdp.utils.io import atomic_path
 
 
@@ -36,12 +37,14 @@ class Dance:
     finishing: list[dict[str, float]] = field(default_factory=list)
     tempo: TempoFold = field(default_factory=TempoFold)
     skeleton: Skeleton = SMPL24
+    readings: list[TextReading] = field(default_factory=list)  # how the style (each span's) was read
 
     def notes(self) -> list[str]:
-        """What a user should know about how these dances were made, one line each: a song danced in half or double
-        time (``sampling.tempo_fold``), and whether beat sync kept its retime or the model's own timing (the retime
+        """What a user should know about how these dances were made, one line each: how the style was read (the
+        genre, or how free text was read and at what speed: :class:`~dgsdp.style.reading.TextReading`), a song
+        danced in half or double time (``sampling.tempo_fold``), and whether beat sync kept its retime or the model's own timing (the retime
         is kept only where it is no worse on either tracker's beats: docs/beatsync.md)."""
-        notes = []
+        notes = list(dict.fromkeys(reading.describe() for reading in self.readings))  # each span's style once
         if self.tempo.octaves:
             notes.append(f"the song: {self.tempo.describe()} (sampling.tempo_fold)")
         judged = [f for f in self.finishing if f.get("judged_beat_sets")]

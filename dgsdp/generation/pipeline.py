@@ -33,6 +33,8 @@ from dgsdp.motion import FloorCleanup, Skeleton, clean_motion
 from dgsdp.resources import home
 from dgsdp.sampling import SamplingSettings
 from dgsdp.style.embeddings import SHIPPED_PROMPTS_DIR, load_prompts, resolve_prompts_file
+from dgsdp.style.reading import TextReading, TextRouter, speed_quantile
+from dgsdp.style.vocab import split_free_text
 from dgsdp.trained import TrainedModel, load_model
 from dgsdp.utils.device import check_cpu_bf16, resolve_device
 
@@ -84,55 +86,115 @@ class Finishing:
 
 @dataclass
 class StylePlan:
-    """A resolved style: one vector (ds,), a schedule (spans, embedded per song length), or none."""
+    """A resolved style: one vector (ds,), a schedule (spans, embedded per song length), or none; ``readings``:
+    how its text (each span's) was read."""
 
     text: str | None
     vector: torch.Tensor | None = None
     spans: list[Any] | None = None
+    readings: list[TextReading] = dataclasses.field(default_factory=list)
+
+
+def _ranked(names: Sequence[str], weights: np.ndarray) -> tuple[tuple[str, float], ...]:
+    """(name, weight) of each genre with some weight, largest first."""
+    order = np.argsort(-np.asarray(weights), kind="stable")
+    return tuple((names[i], float(weights[i])) for i in order if weights[i] > 1e-4)
+
+
+def reading_weights(vector: torch.Tensor, bank: torch.Tensor, temperature: float) -> torch.Tensor:
+    """(P,) the softmax over ``temperature`` of the cosine similarity of each description (``bank``, P x ds) to a
+    free-text style vector (ds,)."""
+    return torch.softmax(torch.nn.functional.cosine_similarity(bank, vector[None, :], dim=-1) / temperature, dim=0)
 
 
 def read_through_bank(
     vector: torch.Tensor, bank: torch.Tensor, temperature: float, values: torch.Tensor | None = None
 ) -> torch.Tensor:
     """A free-text style vector (ds,) read through the descriptions it resembles: the mean of ``values`` (P, ds;
-    default the descriptions' own embeddings ``bank``) weighted by the softmax of the cosine similarity of each
-    description (``bank``, P x ds) to it over ``temperature``. A model has only learnt what its training descriptions'
-    embeddings ask for; text unlike any of them lies where it has learnt nothing, and this keeps it among them (small
-    temperature: the nearest description). With other descriptions than the model's own, ``values`` are the model's
-    mean style of each description's genre, so the text asks for a blend of the genres it reads as."""
-    sims = torch.nn.functional.cosine_similarity(bank, vector[None, :], dim=-1)  # (P,)
-    return torch.softmax(sims / temperature, dim=0) @ (bank if values is None else values)
+    default the descriptions' own embeddings ``bank``) weighted by :func:`reading_weights`. A model has only learnt
+    what its training descriptions' embeddings ask for; text unlike any of them lies where it has learnt nothing, and
+    this keeps it among them (small temperature: the nearest description). With other descriptions than the model's
+    own, ``values`` are the model's mean style of each description's genre, so the text asks for a blend of the
+    genres it reads as."""
+    return reading_weights(vector, bank, temperature) @ (bank if values is None else values)
 
 
-TEXT_READING_OFF = "off"  # style_text_temperature=off: free text by its own embedding, whatever the run chose
+TEXT_READING_OFF = "off"  # style_text_reading=off (or style_text_temperature=off): free text by its own embedding
+TEXT_READINGS = ("router", "blend", TEXT_READING_OFF)
 
 
-def recorded_text_reading(record: Mapping[str, Any] | None) -> tuple[float | None, str | None]:
-    """How a run chose to read free text (its config's ``generation.style_text_temperature`` and
-    ``generation.style_text_descriptions``; the style recipe sets them), as data: a positive number and the name of a
-    *shipped* descriptions file, or (None, None) where the run chose nothing (older checkpoints, the papers' rows)."""
+@dataclass(frozen=True)
+class TextReadingChoice:
+    """How free text is read (docs/style.md): ``how`` "router" (one genre and a speed, :mod:`dgsdp.style.reading`),
+    "blend" (the genres of the descriptions it resembles, softmax of the similarity over ``temperature``) or "off"
+    (its own embedding); ``descriptions``: the descriptions it is read through (a prompts file or a shipped one's
+    name; None: the run's own)."""
+
+    how: str = TEXT_READING_OFF
+    temperature: float | None = None
+    descriptions: str | None = None
+
+    @classmethod
+    def make(cls, how: str | None, temperature: Any = None, descriptions: str | None = None) -> TextReadingChoice:
+        """A checked choice; ``how`` None: "blend" when a temperature is given, else "off"."""
+        if temperature is not None and str(temperature).strip().lower() == TEXT_READING_OFF:
+            how, temperature = how or TEXT_READING_OFF, None
+        how = (
+            str(how).strip().lower() if how is not None else ("blend" if temperature is not None else TEXT_READING_OFF)
+        )
+        if how not in TEXT_READINGS:
+            raise ConfigError(f"style_text_reading must be one of {', '.join(TEXT_READINGS)} or null, got {how!r}")
+        if how == "blend":
+            try:
+                temperature = float(temperature) if temperature is not None else math.nan
+            except (TypeError, ValueError):
+                temperature = math.nan
+            if not temperature > 0:
+                raise ConfigError(
+                    "style_text_reading=blend needs style_text_temperature=<a positive number> (0.02 measured best "
+                    "with aistpp_augmented, docs/style.md)"
+                )
+        elif temperature is not None:
+            raise ConfigError(f"style_text_temperature is the blend's; style_text_reading={how} takes none")
+        if descriptions is not None and how == TEXT_READING_OFF:
+            raise ConfigError(
+                "style_text_descriptions reads free text through descriptions: set style_text_reading=router (or "
+                "style_text_temperature for the blend) too"
+            )
+        return cls(how, temperature if how == "blend" else None, descriptions)
+
+
+def recorded_text_reading(record: Mapping[str, Any] | None) -> TextReadingChoice | None:
+    """How a run chose to read free text (its config's ``generation.style_text_reading``,
+    ``style_text_temperature`` and ``style_text_descriptions``; the style recipes set them), as data, with the
+    descriptions only a *shipped* file's name; None where the run chose nothing (older checkpoints, the papers' rows)."""
     chosen = (record or {}).get("generation") or {}
-    temperature, descriptions = chosen.get("style_text_temperature"), chosen.get("style_text_descriptions")
-    if temperature is None:
-        return None, None
-    try:
-        temperature = float(temperature)
-    except (TypeError, ValueError):
-        temperature = math.nan
-    if not temperature > 0:
+    how, temperature = chosen.get("style_text_reading"), chosen.get("style_text_temperature")
+    descriptions = chosen.get("style_text_descriptions")
+    if how is None and temperature is None:
+        return None
+    if temperature is not None and not isinstance(temperature, int | float):
+        try:
+            temperature = float(temperature)
+        except (TypeError, ValueError):
+            temperature = math.nan
+    if temperature is not None and not temperature > 0:
         raise ConfigError(
             f"the checkpoint's generation.style_text_temperature is {chosen.get('style_text_temperature')!r}, not a "
-            "positive number; give style_text_temperature=<number> or off"
+            "positive number; give style_text_temperature=<number> or style_text_reading=off"
         )
     if descriptions is not None:
         shipped = resolve_prompts_file(str(descriptions))
         if shipped.parent != SHIPPED_PROMPTS_DIR or Path(str(descriptions)).parent != Path("."):
             raise ConfigError(
                 f"the checkpoint names the descriptions {descriptions!r} to read free text through, which is not a "
-                "shipped file's name; give style_text_descriptions=<your file> or style_text_temperature=off"
+                "shipped file's name; give style_text_descriptions=<your file> or style_text_reading=off"
             )
         descriptions = shipped.stem
-    return temperature, descriptions
+    try:
+        return TextReadingChoice.make(how, temperature, descriptions)
+    except ConfigError as e:
+        raise ConfigError(f"the checkpoint's generation settings: {e}") from None
 
 
 class DanceGenerator:
@@ -149,6 +211,7 @@ class DanceGenerator:
         device: torch.device | str = "cpu",
         max_song_seconds: float | None = None,
         trusted: bool = False,
+        text_reading: str | None = None,
         text_temperature: float | str | None = None,
         text_descriptions: str | os.PathLike | None = None,
     ) -> None:
@@ -165,22 +228,15 @@ class DanceGenerator:
         self._audio: AudioEncoder | None = None
         self._embedder: Any = None
         self._warned_tempo = False
-        if text_temperature is None and text_descriptions is None:  # what the run chose (the style recipe reads)
-            text_temperature, text_descriptions = recorded_text_reading(self.spec.record)
-        elif text_temperature == TEXT_READING_OFF:
-            text_temperature = None
-        if text_temperature is not None and not float(text_temperature) > 0:
-            raise ConfigError(f"style_text_temperature must be a positive number, off or null, got {text_temperature}")
-        # free text read through the training descriptions it resembles (see embed_style); None: its own embedding
-        self.text_temperature = None if text_temperature is None else float(text_temperature)
-        # ...or through these descriptions (a prompts file or a shipped one's name), blending the model's genres
-        if text_descriptions is not None and self.text_temperature is None:
-            raise ConfigError(
-                "style_text_descriptions reads free text through descriptions by similarity: set style_text_temperature "
-                "too (0.02 measured best with aistpp_augmented, docs/style.md)"
-            )
-        self.text_descriptions = text_descriptions
+        given = (text_reading, text_temperature, text_descriptions)
+        if all(v is None for v in given):  # what the run chose (the style recipes record it)
+            choice = recorded_text_reading(self.spec.record) or TextReadingChoice()
+        else:
+            choice = TextReadingChoice.make(text_reading, text_temperature, None if text_descriptions is None
+                                            else str(text_descriptions))  # fmt: skip
+        self.text_choice = choice  # how free text is read (see read_style)
         self._reading: tuple[torch.Tensor, torch.Tensor] | None = None
+        self._router: Any = None
 
     @classmethod
     def from_checkpoint(
@@ -190,6 +246,7 @@ class DanceGenerator:
         cache_dir: str | os.PathLike | None = None,
         device: str = "cpu",
         max_song_seconds: float | None = None,
+        text_reading: str | None = None,
         text_temperature: float | str | None = None,
         text_descriptions: str | os.PathLike | None = None,
     ) -> DanceGenerator:
@@ -202,6 +259,7 @@ class DanceGenerator:
             cache_dir=cache_dir,
             device=resolve_device(device),
             max_song_seconds=max_song_seconds,
+            text_reading=text_reading,
             text_temperature=text_temperature,
             text_descriptions=text_descriptions,
         )
@@ -336,23 +394,99 @@ class DanceGenerator:
         return self._embedder
 
     def embed_style(self, text: str) -> torch.Tensor:
-        """Style vector (ds,) of a genre (code or name, from the checkpoint's bank) or free text."""
+        """Style vector (ds,) of a genre (code or name, from the checkpoint's bank) or free text (read as
+        :attr:`text_choice` says); (ds + 1,) with the speed channel for a speed-conditioned model."""
+        return self.read_style(text)[0]
+
+    def read_style(self, text: str) -> tuple[torch.Tensor, TextReading]:
+        """The style vector of :meth:`embed_style` and how the text was read (:class:`TextReading`)."""
         embedder = self.embedder()
         bank = self.model.style_bank
+        names = embedder.vocab.names
         if bank is not None and text in embedder.vocab:
-            return bank.mean_for(torch.tensor([embedder.vocab.index(text)], device=bank.vectors.device))[0].cpu()
-        vector = embedder.embed_text(text).float().cpu()
-        if self.text_temperature is not None and bank is not None and len(bank) > 1 and embedder.kind == "prompt":
+            g = embedder.vocab.index(text)
+            vector = self._genre_means(bank)[g]
+            return self._with_speed(vector, TextReading(text, "genre", genre=names[g]), genre=g)
+        vector = embedder.embed_text(text).float().cpu()  # checks the text (one-hot models take genres only)
+        how = self.text_choice.how
+        if bank is None or len(bank) < 2 or embedder.kind != "prompt" or how == TEXT_READING_OFF:
+            return self._with_speed(vector, TextReading(text, "own"))
+        clean = " ".join(split_free_text(text)[0].split())
+        if how == "blend":
             keys, values = self._text_reading(embedder, bank)
-            vector = read_through_bank(vector, keys, self.text_temperature, values)
-        return vector
+            weights = reading_weights(vector, keys, self.text_choice.temperature)
+            vector = read_through_bank(vector, keys, self.text_choice.temperature, values)
+            genres = self._reading_genres(embedder, bank)
+            per_genre = torch.zeros(len(names)).index_add_(0, genres, weights)
+            reading = TextReading(clean, "blend", weights=_ranked(names, per_genre.numpy()))
+            return self._with_speed(vector, reading, weights=per_genre)
+        probs, energy, known, closest, similarity = self.router().read(clean)
+        means = self._genre_means(bank)
+        if known:
+            g = int(np.argmax(probs))
+            reading = TextReading(clean, "router", _ranked(names, probs), names[g], energy, True, closest, similarity)
+            return self._with_speed(means[g], reading, genre=g, quantile=speed_quantile(energy))
+        present = torch.tensor([i for i in range(len(names)) if bool((bank.genre_index == i).any())])
+        reading = TextReading(clean, "router", _ranked(names, probs), None, energy, False, closest, similarity)
+        return self._with_speed(means[present].mean(0), reading)
+
+    def _genre_means(self, bank: Any) -> torch.Tensor:
+        """(n_genres, ds): each genre's mean style vector (zeros for a genre the bank lacks)."""
+        out = torch.zeros(len(self.embedder().vocab), bank.vectors.shape[-1])
+        for g in range(len(out)):
+            if bool((bank.genre_index == g).any()):
+                out[g] = bank.mean_for(torch.tensor([g], device=bank.vectors.device))[0].float().cpu()
+        return out
+
+    def _with_speed(
+        self,
+        vector: torch.Tensor,
+        reading: TextReading,
+        *,
+        genre: int | None = None,
+        quantile: float = 0.5,
+        weights: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, TextReading]:
+        """The style vector with the speed channel a speed-conditioned model takes, and the reading with that speed:
+        a genre's training speed at ``quantile``, the ``weights``' blend of the genres' median speeds, or else the
+        training windows' median speed; other models: unchanged."""
+        if not getattr(self.model, "speed_conditioning", False):
+            return vector, reading
+        model = self.model
+        if genre is not None:
+            speed = model.genre_speed(torch.tensor([genre]), quantile)[0]
+        elif weights is not None:
+            medians = model.genre_speed(torch.arange(len(weights)), 0.5)
+            speed = (weights.to(medians) @ medians) / weights.sum().clamp_min(1e-12)
+        else:
+            speed = model.speed_reference.float()
+        speed = speed.float().cpu()
+        return model.with_speed(vector.float(), speed).cpu(), dataclasses.replace(reading, speed_m_s=float(speed))
+
+    def router(self) -> TextRouter:
+        """The free-text reader of ``style_text_reading=router``, fitted once on the descriptions read through (the
+        run's own training descriptions unless ``style_text_descriptions`` names others)."""
+        if self._router is None:
+            embedder = self.embedder()
+            path = self.text_choice.descriptions or embedder.prompts_file
+            per_genre = load_prompts(resolve_prompts_file(path), embedder.vocab)
+            names = [n.lower() for n in embedder.vocab.names]
+            self._router = TextRouter(per_genre, embedder.embed_texts, names)
+        return self._router
+
+    def _reading_genres(self, embedder: Any, bank: Any) -> torch.Tensor:
+        """The genre of each description the blend reads through (P,)."""
+        if self.text_choice.descriptions is None:
+            return bank.genre_index.cpu()
+        per_genre = load_prompts(resolve_prompts_file(self.text_choice.descriptions), embedder.vocab)
+        return torch.tensor([g for g, texts in enumerate(per_genre) for _ in texts])
 
     def _text_reading(self, embedder: Any, bank: Any) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The descriptions free text is read through (P, ds) and what each stands for (None: itself)."""
-        if self.text_descriptions is None:
+        if self.text_choice.descriptions is None:
             return bank.vectors.float().cpu(), None
         if self._reading is None:
-            per_genre = load_prompts(resolve_prompts_file(self.text_descriptions), embedder.vocab)
+            per_genre = load_prompts(resolve_prompts_file(self.text_choice.descriptions), embedder.vocab)
             keys = embedder.embed_texts([t for texts in per_genre for t in texts]).float().cpu()
             genres = torch.tensor([g for g, texts in enumerate(per_genre) for _ in texts], device=bank.vectors.device)
             self._reading = (keys, bank.mean_for(genres).float().cpu())
@@ -373,10 +507,10 @@ class DanceGenerator:
             raise ConfigError(f"this model was trained without style conditioning (style=none); drop style={text!r}")
         if is_schedule(text):
             spans = parse_schedule(text)
-            for span in spans:
-                self.embed_style(span.style)  # fail early on an unknown genre
-            return StylePlan(text, spans=spans)
-        return StylePlan(text, vector=self.embed_style(text))
+            readings = [self.read_style(span.style)[1] for span in spans]  # fails early on an unknown genre
+            return StylePlan(text, spans=spans, readings=readings)
+        vector, reading = self.read_style(text)
+        return StylePlan(text, vector=vector, readings=[reading])
 
     def style_frames(self, plan: StylePlan, n_frames: int, blend_seconds: float) -> torch.Tensor | None:
         """(ds,) for one style, (n_frames, ds) for a schedule, None without style."""
@@ -503,7 +637,7 @@ class DanceGenerator:
         )
         return Dance(
             finished, self.fps, self.floor_height, song, plan.text, raw=motions, finishing=stats, tempo=tempo,
-            skeleton=self.skeleton,
+            skeleton=self.skeleton, readings=plan.readings,
         )  # fmt: skip
 
     def finish(

@@ -12,6 +12,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from tqdm.auto import tqdm
 
@@ -19,7 +20,7 @@ from dgsdp.audio.io import AUDIO_SUFFIXES
 from dgsdp.editing import load_motion_file
 from dgsdp.errors import ConfigError, DgsdpError
 from dgsdp.generation.dance import Dance, write_motion
-from dgsdp.generation.pipeline import DanceGenerator, EditSettings, Finishing, StylePlan
+from dgsdp.generation.pipeline import DanceGenerator, EditSettings, Finishing, StylePlan, TextReadingChoice
 from dgsdp.sampling import SamplingSettings
 
 log = logging.getLogger(__name__)
@@ -65,11 +66,21 @@ class GenerateSettings:
     finishing: Finishing = field(default_factory=Finishing)
     seconds: float | None = None
     blend_seconds: float = 2.0
-    style_text_temperature: float | str | None = None  # None: the checkpoint's choice; "off": the text's own
-    style_text_descriptions: str | None = None
+    style_text: TextReadingChoice | None = None  # how free text is read; None: the checkpoint's choice
     num_samples: int = 1
     seed: int = 0
     progress: bool = False
+
+
+def text_reading_arguments(choice: TextReadingChoice | None) -> dict[str, Any]:
+    """:class:`DanceGenerator`'s text-reading arguments for a choice (none: the checkpoint's)."""
+    if choice is None:
+        return {}
+    return {
+        "text_reading": choice.how,
+        "text_temperature": choice.temperature,
+        "text_descriptions": choice.descriptions,
+    }
 
 
 @dataclass
@@ -96,8 +107,7 @@ class SongDancer:
     def from_settings(cls, settings: GenerateSettings) -> SongDancer:
         generator = DanceGenerator.from_checkpoint(
             settings.checkpoint, cache_dir=settings.cache_dir, device=settings.device,
-            max_song_seconds=settings.max_song_seconds, text_temperature=settings.style_text_temperature,
-            text_descriptions=settings.style_text_descriptions,
+            max_song_seconds=settings.max_song_seconds, **text_reading_arguments(settings.style_text),
         )  # fmt: skip
         edit = settings.edit
         if edit.motion is None and edit.motion_file:  # read once, before any song (one clear error for a bad file)

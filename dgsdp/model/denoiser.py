@@ -27,6 +27,9 @@ vector, it predicts the clean motion x0 (B, T, pose_dim).
   at zero: an untrained student is its teacher's conditional model.
 - ``gradient_checkpointing`` recomputes each encoder/decoder layer's activations in the backward pass (less
   memory for long windows, about a third more compute).
+- ``speed_conditioning`` (in neither paper): the style vector has one more channel, the dance's mean joint speed
+  (its log, standardised over the training windows: :meth:`dgsdp.trained.TrainedModel.speed_channel`), which enters
+  every decoder layer with the style (Style Modulation, and wherever else the style goes) and drops with it.
 
 The EDGE architecture is ``rotary_placement="input", null_music="output"`` (see docs/edge.md).
 
@@ -168,8 +171,11 @@ class DanceDenoiser(nn.Module):
         style_standardize: float | None = None,
         guidance_inputs: int = 0,
         gradient_checkpointing: bool = False,
+        speed_conditioning: bool = False,
     ) -> None:
         super().__init__()
+        if speed_conditioning and not style_dim:
+            raise ValueError("speed_conditioning travels with the style: it needs a model with style (style_dim > 0)")
         if style_dim and style_injection not in INJECTIONS:
             raise ValueError(f"unknown style injection {style_injection!r}; use one of {INJECTIONS}")
         if null_music not in NULL_MUSIC:
@@ -182,6 +188,8 @@ class DanceDenoiser(nn.Module):
         self.gradient_checkpointing = gradient_checkpointing
         self.pose_dim, self.seq_len, self.d_model = pose_dim, seq_len, d_model
         self.audio_dim, self.style_dim = audio_dim, style_dim
+        self.speed_conditioning = bool(speed_conditioning)
+        style_in = self.style_in = style_dim + int(self.speed_conditioning)  # the style vector's channels
         self.use_modulation = bool(style_dim) and style_injection == "modulation"
         self.use_concat = bool(style_dim) and (style_injection == "concat" or also_concat)
 
@@ -200,11 +208,11 @@ class DanceDenoiser(nn.Module):
         self.null_music = nn.Parameter(torch.randn(1, seq_len, d_model) * 0.02)
         # EDGE: a learned null for the pooled music vector too (the null token sequence replaces the encoder output)
         self.null_music_hidden = nn.Parameter(torch.randn(1, d_model) * 0.02) if null_music == "output" else None
-        self.style_concat_proj = nn.Linear(style_dim, d_model, bias=False) if self.use_concat else None
-        self.null_style = nn.Parameter(torch.zeros(style_dim)) if style_dim else None
+        self.style_concat_proj = nn.Linear(style_in, d_model, bias=False) if self.use_concat else None
+        self.null_style = nn.Parameter(torch.zeros(style_in)) if style_dim else None
         # style in every FiLM too (in neither paper): the style's projection joins the diffusion step's condition,
         # which scales and shifts every sub-block of every decoder layer
-        self.style_film_proj = nn.Linear(style_dim, d_model) if style_dim and style_film else None
+        self.style_film_proj = nn.Linear(style_in, d_model) if style_dim and style_film else None
         # style standardisation (in neither paper): every style vector, free text included, is centred on the training
         # style bank's mean and scaled to a per-dimension root mean square of ``style_standardize``, so that what
         # tells the genres apart, not what their text embeddings share, reaches the decoder (set_style_statistics)
@@ -245,7 +253,7 @@ class DanceDenoiser(nn.Module):
         if self.use_modulation:
             count = 1 if modulation_shared else n_layers
             self.modulations = nn.ModuleList(
-                StyleModulation(d_model, style_dim, variant=modulation_variant) for _ in range(count)
+                StyleModulation(d_model, style_in, variant=modulation_variant) for _ in range(count)
             )
         self.output_proj = nn.Linear(d_model, pose_dim)
 
@@ -273,11 +281,17 @@ class DanceDenoiser(nn.Module):
     def _style(self, style: torch.Tensor | None, keep: torch.Tensor, batch: int) -> torch.Tensor | None:
         if not self.style_dim:
             return None
-        null = self.null_style.expand(batch, self.style_dim)
+        null = self.null_style.expand(batch, self.style_in)
+        if style is not None and style.shape[-1] != self.style_in:
+            what = f"{self.style_dim} style channels and the speed channel" if self.speed_conditioning else "its style"
+            raise ValueError(
+                f"this denoiser takes style vectors of {self.style_in} channels ({what}), got {tuple(style.shape)}"
+            )
         if style is None:
             return null
-        if self.style_standardize is not None:
-            style = (style - self.style_mean.to(style.dtype)) * self.style_scale.to(style.dtype)
+        if self.style_standardize is not None:  # the text embedding's channels only, not the speed
+            text = (style[..., : self.style_dim] - self.style_mean.to(style.dtype)) * self.style_scale.to(style.dtype)
+            style = torch.cat((text, style[..., self.style_dim :]), dim=-1)
         if style.ndim == 3:  # per-frame style (B, T, ds)
             return torch.where(keep[:, None, None], style, null[:, None, :])
         return torch.where(keep[:, None], style, null)

@@ -121,6 +121,10 @@ class GenreVocab:
         or None when it is a known genre or reads as a description rather than a misspelt genre."""
         if self._find(key) is not None or not re.fullmatch(r"[\w\s-]{2,30}", key.strip()) or len(key.split()) > 3:
             return None
+        words = key.split()
+        spans = [" ".join(words[i:j]) for i in range(len(words)) for j in range(i + 1, len(words) + 1)]
+        if any(self._find(span) is not None for span in spans if span != " ".join(words)):
+            return None  # a genre with other words ("slow ballet jazz"): a description, not a misspelt genre
         norm = _normalise(key)
         for i, name in enumerate(self._names):  # "locking", "popping", "krumping": a genre name plus an ending
             name_norm = _normalise(name)

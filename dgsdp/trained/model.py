@@ -24,6 +24,7 @@ from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from dgsdp.audio.tempo import check_tempo_range
 from dgsdp.errors import CheckpointError, ConfigError
+from dgsdp.metrics.speed import SPEED_QUANTILES
 from dgsdp.motion import MinMaxNormalizer, Skeleton
 from dgsdp.registry import Source
 from dgsdp.sampling import Sampler
@@ -68,6 +69,12 @@ class TrainedModel(nn.Module):
         self.register_buffer("style_vectors", torch.zeros(cond.style_bank_size, self.style_dim))
         self.register_buffer("style_genre_index", torch.zeros(cond.style_bank_size, dtype=torch.long))
         self.n_genres = cond.n_genres
+        # a model conditioned on speed (model.speed_conditioning) records its training windows' mean joint speeds:
+        # per genre, their quantiles 0, 0.1, ..., 1 (m/s), and the median of all of them, the speed channel's zero
+        self.speed_conditioning = bool(spec.model.get("speed_conditioning", False))
+        if self.speed_conditioning:
+            self.register_buffer("speed_quantiles", torch.full((cond.n_genres, SPEED_QUANTILES), math.nan))
+            self.register_buffer("speed_reference", torch.tensor(math.nan))
         self.ema = AveragedModel(self.denoiser, multi_avg_fn=get_ema_multi_avg_fn(spec.ema_decay), use_buffers=True)
         self.ema.requires_grad_(False)
 
@@ -84,6 +91,44 @@ class TrainedModel(nn.Module):
         self.style_genre_index.copy_(bank.genre_index)
         for denoiser in (self.denoiser, self.ema.module):
             denoiser.set_style_statistics(self.style_vectors)
+
+    def set_speed_statistics(self, quantiles: Any, reference: float) -> None:
+        """Store the training windows' speeds (per genre quantiles (n_genres, SPEED_QUANTILES) and the median of
+        all, m/s) of a speed-conditioned model; a no-op for other models."""
+        if not self.speed_conditioning:
+            return
+        quantiles = torch.as_tensor(quantiles, dtype=torch.float32)
+        if quantiles.shape != self.speed_quantiles.shape:
+            raise ConfigError(
+                f"speed quantiles {tuple(quantiles.shape)} do not match {tuple(self.speed_quantiles.shape)}"
+            )
+        if not (math.isfinite(reference) and reference > 0):
+            raise ConfigError(f"the training windows' median speed must be a positive number, got {reference}")
+        self.speed_quantiles.copy_(quantiles)
+        self.speed_reference.fill_(float(reference))
+
+    def genre_speed(self, genre: torch.Tensor, quantile: float | torch.Tensor = 0.5) -> torch.Tensor:
+        """The speed (m/s, (B,)) at ``quantile`` (0-1; scalar or (B,)) of each genre's training windows, linear
+        between the recorded quantiles; the median of all windows for a genre the training data lacks."""
+        table = self.speed_quantiles.to(genre.device)
+        position = torch.as_tensor(quantile, dtype=table.dtype, device=genre.device).clamp(0, 1) * (table.shape[1] - 1)
+        position = position.expand(genre.shape)
+        lo = position.floor().long().clamp(max=table.shape[1] - 2)
+        w = position - lo
+        rows = table[genre]
+        speed = rows.gather(1, lo[:, None])[:, 0] * (1 - w) + rows.gather(1, (lo + 1)[:, None])[:, 0] * w
+        return torch.where(torch.isfinite(speed), speed, self.speed_reference.to(speed))
+
+    def speed_channel(self, speed_m_s: torch.Tensor) -> torch.Tensor:
+        """The style vector's speed channel for mean joint speeds (m/s): log2 of the speed over the training
+        windows' median (one unit: twice or half as fast)."""
+        reference = self.speed_reference.to(speed_m_s.device, torch.float32)
+        return torch.log2(speed_m_s.float().clamp_min(1e-3) / reference)
+
+    def with_speed(self, style: torch.Tensor, speed_m_s: torch.Tensor) -> torch.Tensor:
+        """Style vectors (B, ds) or (ds,) with their speed channel appended, for mean joint speeds (B,) or ()."""
+        channel = self.speed_channel(speed_m_s).to(style.dtype)
+        return torch.cat((style, channel[..., None]), dim=-1)
 
     def set_floor_height(self, metres: float) -> None:
         """Store the floor height of the training data (z-up metres, see dgsdp.motion.floor)."""
@@ -118,13 +163,19 @@ class TrainedModel(nn.Module):
         return cached[1]
 
     # --- conditioning ------------------------------------------------------------------------------------
-    def style_for(self, genre: torch.Tensor, random: bool, check: bool = True) -> torch.Tensor | None:
-        """Style vectors (B, ds) for genre indices (B,): a random bank row of each genre, or the genre's mean.
-        ``check=False`` skips the range checks (they read values back from the device)."""
+    def style_for(
+        self, genre: torch.Tensor, random: bool, check: bool = True, speed: torch.Tensor | None = None
+    ) -> torch.Tensor | None:
+        """Style vectors (B, ds) for genre indices (B,): a random bank row of each genre, or the genre's mean; for a
+        speed-conditioned model (B, ds + 1), with the speed channel of ``speed`` (B,) m/s (default: each genre's
+        median speed). ``check=False`` skips the range checks (they read values back from the device)."""
         bank = self.style_bank
         if bank is None:
             return None
-        return bank.sample(genre, check=check) if random else bank.mean_for(genre, check=check)
+        style = bank.sample(genre, check=check) if random else bank.mean_for(genre, check=check)
+        if not self.speed_conditioning:
+            return style
+        return self.with_speed(style, self.genre_speed(genre) if speed is None else speed.to(style.device))
 
     # --- sampling ----------------------------------------------------------------------------------------
     def sampler(self, use_ema: bool = True) -> Sampler:

@@ -51,7 +51,8 @@ class DanceDiffusion(TrainedModel, L.LightningModule):
         t = self.diffusion.sample_timesteps(x0.shape[0], x0.device, generator)
         noise = torch.randn(x0.shape, device=x0.device, generator=generator)
         # genre indices come from the dataset's vocabulary (checked when it was read): no device read-back here
-        return t, self.diffusion.q_sample(x0, t, noise), self.style_for(batch["genre"], random=train, check=False)
+        style = self.style_for(batch["genre"], random=train, check=False, speed=batch.get("speed"))
+        return t, self.diffusion.q_sample(x0, t, noise), style
 
     def _loss(
         self, denoiser: torch.nn.Module, batch: dict[str, Any], train: bool, generator=None

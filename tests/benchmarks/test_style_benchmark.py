@@ -101,10 +101,29 @@ def test_heldout_descriptions_are_apart_from_training(heldout_file):
 
 def test_last_line_means_over_checkpoints():
     results = [
-        {"genres": list("ab"), "gt_acc": 0.9, "raw": {"genre_acc": 0.5, "text_acc": 0.2, "genre_speed_within": 1}},
-        {"genres": list("ab"), "gt_acc": 0.9, "raw": {"genre_acc": 0.7, "text_acc": 0.4, "genre_speed_within": 2}},
+        {"genres": list("ab"), "gt_acc": 0.9, "raw": {"genre_acc": 0.5, "text_acc": 0.2, "genre_speed_within": 1,
+                                                      "speed_spearman": 0.5, "modifiers_right": 0.8}},
+        {"genres": list("ab"), "gt_acc": 0.9, "raw": {"genre_acc": 0.7, "text_acc": 0.4, "genre_speed_within": 2,
+                                                      "speed_spearman": 0.7, "modifiers_right": 1.0}},
+    ]  # fmt: skip
+    assert sb.last_line(results) == (
+        "style_acc=0.600 text_acc=0.300 genre_speed_within_30pct=1/2 speed_spearman=0.600 modifiers=0.900 gt_acc=0.900"
+    )
+
+
+def test_speed_rank_and_modifier_pairs_by_hand():
+    # genres 0, 1, 2 trained at 0.2, 0.5, 0.4 m/s; their dances average 0.3, 0.9, 0.6: the same order, rho = 1
+    speeds, genres = [0.2, 0.4, 1.0, 0.8, 0.6], [0, 0, 1, 1, 2]
+    assert sb.speed_rank_correlation(speeds, genres, {0: 0.2, 1: 0.5, 2: 0.4}) == pytest.approx(1.0)
+    # genre 2's dances now the fastest: ranks (1, 3, 2) against (1, 2, 3): 1 - 6 * 2 / (3 * 8) = 0.5
+    assert sb.speed_rank_correlation([0.3, 0.9, 1.2], [0, 1, 2], {0: 0.2, 1: 0.5, 2: 0.4}) == pytest.approx(0.5)
+    assert math.isnan(sb.speed_rank_correlation([0.3, 0.9], [0, 1], {0: 0.2, 1: 0.5}))  # two genres: no rank
+    assert sb.ordered_right([0.3, 0.5, 0.4, 0.2], [0.4, 0.5, 0.6, 0.1]) == 0.5  # a tie is not ordered right
+    assert [p[0].format(genre="house") for p in sb.MODIFIER_PAIRS] == [
+        "slow house",
+        "gentle house",
+        "slow gentle house",
     ]
-    assert sb.last_line(results) == "style_acc=0.600 text_acc=0.300 genre_speed_within_30pct=1/2 gt_acc=0.900"
 
 
 @pytest.fixture(scope="module")
@@ -138,7 +157,7 @@ def test_benchmark_end_to_end(prompt_checkpoint, capsys):
     data = json.loads((out / "style.json").read_text())[0]
     assert (out / "confusion.png").stat().st_size > 1000
     assert data["n_clips"] == 10
-    assert data["text_reading"] == {"temperature": None, "descriptions": None}  # the text's own embedding
+    assert data["text_reading"] == {"how": "off", "temperature": None, "descriptions": None}  # its own embedding
     assert data["heldout_descriptions"] == "aistpp_second.yaml"
     assert any(line.startswith("free text (held out)") and "(aistpp_second.yaml)" in line for line in printed)
     for name in ("raw", "finished"):
@@ -149,12 +168,20 @@ def test_benchmark_end_to_end(prompt_checkpoint, capsys):
         assert figures["genre_acc"] == pytest.approx(np.trace(matrix) / 10)
         assert 0.0 <= figures["text_acc"] <= 1.0
         assert figures["genre_speed_within"] == sum(sb.within(r) for r in figures["speed_ratio"].values())
+        pairs = figures["modifier_pairs"]  # each genre's first clip, three pairs of phrasings
+        assert len(pairs) == 30 and {p["genre"] for p in pairs} == set(AISTPP_GENRES.codes)
+        assert pairs[0]["slower"] == "slow break" and pairs[0]["faster"] == "fast break"
+        right = np.mean([p["faster_m_s"] > p["slower_m_s"] for p in pairs])
+        assert figures["modifiers_right"] == pytest.approx(right)
+        assert -1.0 <= figures["speed_spearman"] <= 1.0
     schedule = data["schedule"]
     assert len(schedule["rows"]) == 5 and schedule["span_seconds"] == 10.0  # the 7 s songs looped to 20 s
     assert {r["first"] for r in schedule["rows"]} == set(AISTPP_GENRES.codes[:5])
     expected = (
         f"style_acc={data['raw']['genre_acc']:.3f} text_acc={data['raw']['text_acc']:.3f} "
-        f"genre_speed_within_30pct={data['raw']['genre_speed_within']}/10 gt_acc={data['gt_acc']:.3f}"
+        f"genre_speed_within_30pct={data['raw']['genre_speed_within']}/10 "
+        f"speed_spearman={data['raw']['speed_spearman']:.3f} modifiers={data['raw']['modifiers_right']:.3f} "
+        f"gt_acc={data['gt_acc']:.3f}"
     )
     assert printed[-1] == expected
     assert any(line.startswith("confusion matrix, raw") for line in printed)
@@ -197,31 +224,31 @@ def test_free_text_read_through_other_descriptions_asks_for_their_genres(prompt_
     # the model's own descriptions (the default) keep their own embeddings, not the genre means
     own = DanceGenerator.from_checkpoint(run["checkpoint"], cache_dir=run["cache"], text_temperature=1e-4)
     assert not torch.allclose(own.embed_style(kr_text), kr_mean, atol=1e-3)
-    with pytest.raises(ConfigError, match="style_text_temperature"):
+    with pytest.raises(ConfigError, match="style_text_reading=router"):
         DanceGenerator.from_checkpoint(run["checkpoint"], cache_dir=run["cache"], text_descriptions="aistpp_augmented")
 
 
 def test_a_run_that_chose_a_reading_is_read_that_way_unless_told_otherwise(prompt_checkpoint):
-    """The style recipe records generation.style_text_temperature/descriptions: generate.py, the studio and the
-    benchmarks read free text that way by default; off or explicit settings win."""
-    from dgsdp.generation.pipeline import DanceGenerator
+    """The style recipes record generation.style_text_*: generate.py, the studio and the benchmarks read free text
+    that way by default; off or explicit settings win."""
+    from dgsdp.generation.pipeline import DanceGenerator, TextReadingChoice
     from dgsdp.trained import load_model
 
     run = prompt_checkpoint
     model = load_model(run["checkpoint"])
-    assert DanceGenerator(model, cache_dir=run["cache"]).text_temperature is None  # the run chose nothing
+    assert DanceGenerator(model, cache_dir=run["cache"]).text_choice == TextReadingChoice()  # the run chose none
     model.spec.record["generation"] = {"style_text_temperature": 0.02, "style_text_descriptions": "aistpp_augmented"}
     chosen = DanceGenerator(model, cache_dir=run["cache"])
-    assert (chosen.text_temperature, chosen.text_descriptions) == (0.02, "aistpp_augmented")
+    assert chosen.text_choice == TextReadingChoice("blend", 0.02, "aistpp_augmented")
     bank = model.style_bank
     kr = AISTPP_GENRES.index("KR")
     kr_mean = bank.mean_for(torch.tensor([kr], device=bank.vectors.device))[0].cpu()
     text = "heavy stomping with the chest thrust forward and the arms thrown out violently"
     own = DanceGenerator(model, cache_dir=run["cache"], text_temperature="off")
-    assert (own.text_temperature, own.text_descriptions) == (None, None)
+    assert own.text_choice == TextReadingChoice("off")
     assert torch.allclose(own.embed_style(text), own.embedder().embed_text(text).float().cpu())
     # read, the text is a blend of the model's genre means: nearer the krump mean than its own embedding is
     read = chosen.embed_style(text)
     assert torch.dist(read, kr_mean) < torch.dist(own.embed_style(text), kr_mean)
     mine = DanceGenerator(model, cache_dir=run["cache"], text_temperature=0.5)
-    assert (mine.text_temperature, mine.text_descriptions) == (0.5, None)  # the model's own descriptions
+    assert mine.text_choice == TextReadingChoice("blend", 0.5, None)  # the model's own descriptions

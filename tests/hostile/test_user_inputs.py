@@ -67,6 +67,9 @@ def test_free_text_on_purpose_with_prefix():
     assert encoder.seen == ["locking"] and torch.equal(vector, torch.full((4,), 7.0))
     assert AISTPP_GENRES.suggest("sharp, powerful krump with chest pops") is None  # a description is not a typo
     assert AISTPP_GENRES.suggest("Lock") is None  # a genre is not a near miss
+    # a genre with a speed word is a description, not a misspelt genre; a misspelt genre with one still is
+    assert AISTPP_GENRES.suggest("slow ballet jazz") is None and AISTPP_GENRES.suggest("fast krump") is None
+    assert AISTPP_GENRES.suggest("balet jazz") == "Ballet Jazz" and AISTPP_GENRES.suggest("krumpp") == "Krump"
     accepted()
 
 

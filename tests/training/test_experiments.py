@@ -14,22 +14,24 @@ EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
 # the quick start's ablation (sweeps/quickstart.yaml): small model, one change per row;
 # row: (velocity loss weight, audio.rhythm_only, audio.beat_phase, steps, pause loss weight, data.tempo_augment,
 # data.synthetic.offbeats, model.aligned_music, model.dropout, loss.root, style.prompts_file,
-# generation.style_text_temperature: how generate.py reads free text with the row's model by default)
+# generation.style_text_temperature and style_text_reading: how generate.py reads free text with the row's model by
+# default, model.speed_conditioning)
 QUICKSTART_ROWS = {
-    "quickstart_row0": (0.0, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None),
-    "quickstart_row1": (2.964, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None),
-    "quickstart_row2": (2.964, True, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None),
-    "quickstart_row3": (2.964, True, True, 500, 0.0, None, True, False, 0.1, 0.0, None, None),
-    "quickstart_row4": (2.964, True, False, 1000, 0.0, None, True, False, 0.1, 0.0, None, None),
-    "quickstart_row5": (2.964, True, False, 1000, 6.0, None, True, False, 0.1, 0.0, None, None),
-    "quickstart_row6": (2.964, True, False, 1000, 6.0, [0.8, 1.25], True, False, 0.1, 0.0, None, None),
-    "quickstart_row7": (2.964, True, False, 1000, 6.0, None, False, False, 0.1, 0.0, None, None),
-    "quickstart_row8": (2.964, True, False, 1000, 6.0, None, True, True, 0.1, 0.0, None, None),
-    "quickstart_row9": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 0.0, None, None),
-    "quickstart_row10": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, None, 0.02),
-    "quickstart_row11": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, "aistpp_augmented", 0.02),
-    "quickstart_row12": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, 0.02),
-}
+    "quickstart_row0": (0.0, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False),
+    "quickstart_row1": (2.964, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False),
+    "quickstart_row2": (2.964, True, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False),
+    "quickstart_row3": (2.964, True, True, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False),
+    "quickstart_row4": (2.964, True, False, 1000, 0.0, None, True, False, 0.1, 0.0, None, None, None, False),
+    "quickstart_row5": (2.964, True, False, 1000, 6.0, None, True, False, 0.1, 0.0, None, None, None, False),
+    "quickstart_row6": (2.964, True, False, 1000, 6.0, [0.8, 1.25], True, False, 0.1, 0.0, None, None, None, False),
+    "quickstart_row7": (2.964, True, False, 1000, 6.0, None, False, False, 0.1, 0.0, None, None, None, False),
+    "quickstart_row8": (2.964, True, False, 1000, 6.0, None, True, True, 0.1, 0.0, None, None, None, False),
+    "quickstart_row9": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 0.0, None, None, None, False),
+    "quickstart_row10": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False),
+    "quickstart_row11": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, "aistpp_augmented", 0.02, None, False),
+    "quickstart_row12": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False),
+    "quickstart_row13": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True),
+}  # fmt: skip
 
 
 def _row(cfg) -> tuple:
@@ -38,6 +40,7 @@ def _row(cfg) -> tuple:
         cfg.loss.velocity, cfg.audio.rhythm_only, cfg.audio.beat_phase, cfg.trainer.max_steps, cfg.loss.pause,
         tempo if tempo is None else list(tempo), cfg.data.synthetic.offbeats, cfg.model.aligned_music,
         cfg.model.dropout, cfg.loss.root, cfg.style.prompts_file, cfg.generation.style_text_temperature,
+        cfg.generation.style_text_reading, cfg.model.speed_conditioning,
     )  # fmt: skip
 
 

@@ -30,7 +30,6 @@ from dgsdp.benchmarks.realsongs.measures import (
     SongFigures,
     dance_figures,
     floating_fraction,
-    mean_joint_speed,
     p999_joint_speed,
     penetration_cm,
     phase_bins,
@@ -61,6 +60,7 @@ from dgsdp.benchmarks.realsongs.report import (
 from dgsdp.benchmarks.realsongs.run import main, run_benchmark
 from dgsdp.benchmarks.realsongs.songs import SongInfo, analyse_song, pick_varied, prepare, song_family, write_versions
 from dgsdp.metrics.beats import BAS_VARIANTS, BeatScores, beat_scores
+from dgsdp.metrics.speed import mean_joint_speed
 
 __all__ = [
     "BAS_VARIANTS", "low_phase", "phase_bins", "phase_distance", "raw_summary", "speed_by_phase",

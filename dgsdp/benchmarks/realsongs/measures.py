@@ -17,6 +17,7 @@ import numpy as np
 from dgsdp.errors import DgsdpError
 from dgsdp.metrics._common import check_joints
 from dgsdp.metrics.beats import beat_scores
+from dgsdp.metrics.speed import joint_speeds, mean_joint_speed
 from dgsdp.motion.skeleton import FOOT_JOINTS
 
 FPS = 30
@@ -37,20 +38,9 @@ SEAM_HALF_WIDTH_FRAMES = 2
 
 # Where the Debian packages hyperrogue-music, drascula-music and fb-music-high (and frozen-bubble-data, which the
 # last one comes with) install their music.
-def joint_speeds(joints: np.ndarray, fps: float = FPS) -> np.ndarray:
-    """Speed of every joint between consecutive frames, (T-1, 24) in m/s."""
-    positions = check_joints(joints, min_frames=2)
-    return np.linalg.norm(np.diff(positions, axis=0), axis=-1) * fps
-
-
 def p999_joint_speed(joints: np.ndarray, fps: float = FPS) -> float:
     """The 99.9th percentile of joint speed (m/s) over all joints and frames."""
     return float(np.percentile(joint_speeds(joints, fps), 99.9))
-
-
-def mean_joint_speed(joints: np.ndarray, fps: float = FPS) -> float:
-    """Mean joint speed (m/s) over all joints and frames."""
-    return float(joint_speeds(joints, fps).mean())
 
 
 def penetration_cm(joints: np.ndarray, floor_m: float = 0.0) -> float:

@@ -1,0 +1,208 @@
+"""Reading free text as a genre and a speed: the router of ``style_text_reading=router``.
+
+A model trained on a few descriptions per genre has learnt what those descriptions' embeddings ask for; a text
+unlike them lies where it learnt nothing, and a blend of genres is danced as a third genre. :class:`TextRouter`
+therefore reads a text in three parts, each fitted on the run's training descriptions alone (never on the held-out
+lists the style benchmark measures with):
+
+- **genre**: a linear classifier (logistic regression) on the text embeddings of the descriptions, of each
+  sentence of those with several, and of each genre's name in a few neutral phrases ("a krump dance"), gives a
+  probability per genre; the text is danced as the likeliest genre, exactly as that genre asked by name.
+- **energy**: a second linear classifier, on phrases that compose each genre's name with slow and fast words
+  (``resources/style_attributes.yaml``) and on the descriptions themselves as neutral, reads how much faster or
+  slower than usual the text asks to be danced: -1 to +1 (the mean reading of the slow and of the fast phrases is
+  -1 and +1). A model conditioned on speed dances it at that quantile of its genre's training speeds.
+- **known**: a text less similar to every description (and every composed phrase) than each description is to its
+  nearest other description resembles nothing the model knows; it is danced in no particular genre, and the
+  reading says so.
+
+:class:`TextReading` is what a dance reports about how its style was read.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from dgsdp.errors import ConfigError
+from dgsdp.resources import RESOURCES_DIR
+
+ATTRIBUTES_FILE = RESOURCES_DIR / "style_attributes.yaml"
+GENRE_C = 30.0  # the genre classifier's inverse regularisation: the best of 3, 10, 30 in leave-one-description-out
+# (aistpp_augmented: 0.78 of its descriptions read as their genre when left out, with their sentences)
+ENERGY_C = 1.0  # the energy classifier's
+SPEED_SPAN = 0.4  # energy +-1 asks for the genre's training speed at quantile 0.5 +- this (its 10th / 90th percentile)
+MIN_SENTENCE_WORDS = 3
+
+
+@dataclass(frozen=True)
+class TextReading:
+    """How a style text was read: ``how`` ("genre": a genre asked by name; "router"; "blend": similarity weights;
+    "own": the text's own embedding), the genres it was read as with their weights (largest first), the genre danced
+    (None: no one genre), the energy (-1 slow to +1 fast; 0: the genre's usual), whether it resembles the model's
+    descriptions (with the closest one and its similarity), and the speed asked (m/s; speed-conditioned models)."""
+
+    text: str
+    how: str
+    weights: tuple[tuple[str, float], ...] = ()
+    genre: str | None = None
+    energy: float = 0.0
+    known: bool = True
+    closest: str | None = None
+    similarity: float | None = None
+    speed_m_s: float | None = None
+
+    def describe(self) -> str:
+        """One line for the user."""
+        speed = "" if self.speed_m_s is None else f", at {self.speed_m_s:.2f} m/s"
+        if self.how == "genre":
+            return f"style {self.text!r}: the genre {self.genre}{speed}"
+        if self.how == "own":
+            return f"style {self.text!r}: read by its own text embedding (style_text_reading=off)"
+        if not self.known:
+            return (
+                f"style {self.text!r} resembles none of the descriptions this model knows (the closest, "
+                f"{_short(self.closest)}, at similarity {self.similarity:.2f}): danced in no particular genre{speed}"
+            )
+        top = ", ".join(f"{name} {w:.2f}" for name, w in self.weights[:3])
+        if self.how == "blend":
+            return f"style {self.text!r}: read as a blend of genres ({top})"
+        pace = "its genre's usual pace" if abs(self.energy) < 0.05 else ("slower" if self.energy < 0 else "faster")
+        energy = f"energy {self.energy:+.2f} ({pace})"
+        return f"style {self.text!r}: read as {self.genre} ({top}); {energy}{speed}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "text": self.text, "how": self.how, "weights": dict(self.weights), "genre": self.genre,
+            "energy": self.energy, "known": self.known, "closest": self.closest, "similarity": self.similarity,
+            "speed_m_s": self.speed_m_s,
+        }  # fmt: skip
+
+
+def _short(text: str | None, words: int = 8) -> str:
+    parts = (text or "").split()
+    return repr(" ".join(parts[:words]) + (" ..." if len(parts) > words else ""))
+
+
+def sentences(text: str) -> list[str]:
+    """The sentences of a description of several (each of at least MIN_SENTENCE_WORDS words), else []."""
+    parts = [p.strip() for p in re.split(r"(?<=[.;!?])\s+", text) if len(p.split()) >= MIN_SENTENCE_WORDS]
+    return parts if len(parts) > 1 else []
+
+
+def load_attributes(path: str | Path = ATTRIBUTES_FILE) -> dict[str, list[str]]:
+    """The slow and fast words and the templates that compose them with genre names (see the file)."""
+    import yaml
+
+    data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    keys = ("slow", "fast", "templates", "neutral_templates")
+    if not isinstance(data, dict) or any(not isinstance(data.get(k), list) or not data[k] for k in keys):
+        raise ConfigError(f"{path} must list {', '.join(keys)}")
+    for template in data["templates"]:
+        if "{word}" not in template or "{genre}" not in template:
+            raise ConfigError(f"{path}: template {template!r} needs {{word}} and {{genre}}")
+    return {k: [str(v) for v in data[k]] for k in keys}
+
+
+def _unit(x: torch.Tensor) -> np.ndarray:
+    return torch.nn.functional.normalize(x.float(), dim=-1).cpu().numpy().astype(np.float64)
+
+
+class TextRouter:
+    """Reads free text as a genre, an energy and whether it is known (see the module docstring), fitted on a run's
+    training descriptions ``per_genre`` (one list per genre, in the vocabulary's order) with its text encoder's
+    ``embed`` (texts -> (N, dim)). ``genre_names``: the genres' names, composed with the attribute words."""
+
+    def __init__(
+        self,
+        per_genre: Sequence[Sequence[str]],
+        embed: Callable[[list[str]], torch.Tensor],
+        genre_names: Sequence[str],
+        attributes: dict[str, list[str]] | None = None,
+    ) -> None:
+        from sklearn.linear_model import LogisticRegression
+
+        if len(per_genre) != len(genre_names) or sum(1 for texts in per_genre if texts) < 2:
+            raise ConfigError("the free-text reader needs descriptions of at least two genres")
+        attributes = attributes or load_attributes()
+        self.embed = embed
+        self.n_genres = len(per_genre)
+        # the examples: each description, then its sentences (a description and its sentences share a group)
+        texts, labels, groups = [], [], []
+        for genre, descriptions in enumerate(per_genre):
+            for d in descriptions:
+                for t in [d, *sentences(d)]:
+                    texts.append(t)
+                    labels.append(genre)
+                    groups.append(len(set(groups)) if t == d else groups[-1])
+        self.texts, self.labels, self.groups = texts, np.asarray(labels), np.asarray(groups)
+        self.examples = _unit(embed(texts))
+        # the genre: the examples, and each genre's name in the neutral templates ("a krump dance")
+        named = [(t.format(genre=name), g) for g, name in enumerate(genre_names) if per_genre[g]
+                 for t in attributes["neutral_templates"]]  # fmt: skip
+        x_named = _unit(embed([t for t, _ in named]))
+        self.genre_model = LogisticRegression(C=GENRE_C, max_iter=5000).fit(
+            np.concatenate([self.examples, x_named]), np.concatenate([self.labels, [g for _, g in named]])
+        )
+        # known: as similar to some description as each description is to its nearest other one
+        heads = np.flatnonzero(np.r_[True, self.groups[1:] != self.groups[:-1]])
+        sims = self.examples[heads] @ self.examples.T
+        sims[self.groups[heads][:, None] == self.groups[None, :]] = -np.inf
+        self.known_similarity = float(sims.max(axis=1).min())
+        # energy: slow / neutral / fast phrases composed with the genres' names, the descriptions neutral
+        phrases, classes = [], []
+        for name in genre_names:
+            for cls, words in ((0, attributes["slow"]), (2, attributes["fast"])):
+                for word in words:
+                    for template in attributes["templates"]:
+                        phrases.append(template.format(word=word, genre=name))
+                        classes.append(cls)
+            for template in attributes["neutral_templates"]:
+                phrases.append(template.format(genre=name))
+                classes.append(1)
+        composed = _unit(embed(phrases))
+        x = np.concatenate([composed, self.examples])
+        y = np.concatenate([np.asarray(classes), np.ones(len(self.examples), dtype=np.int64)])
+        self.energy_model = LogisticRegression(C=ENERGY_C, max_iter=5000, class_weight="balanced").fit(x, y)
+        # what the reader knows: the descriptions and the genres' names composed with the attribute words
+        self.known_texts = [*texts, *phrases]
+        self.known_examples = np.concatenate([self.examples, composed])
+        raw = self._raw_energy(composed)
+        classes_arr = np.asarray(classes)
+        self.energy_scale = (float(-raw[classes_arr == 0].mean()), float(raw[classes_arr == 2].mean()))
+        if not min(self.energy_scale) > 0:
+            raise ConfigError("the attribute words do not separate slow from fast for this text encoder")
+
+    def _raw_energy(self, x: np.ndarray) -> np.ndarray:
+        p = self.energy_model.predict_proba(x)
+        order = list(self.energy_model.classes_)
+        return p[:, order.index(2)] - p[:, order.index(0)]
+
+    def read(self, text: str) -> tuple[np.ndarray, float, bool, str, float]:
+        """(genre probabilities (G,) over all the vocabulary's genres, energy in [-1, 1], known, the closest
+        description, its similarity) of one text."""
+        x = _unit(self.embed([text]))
+        probs = np.zeros(self.n_genres)
+        probs[self.genre_model.classes_] = self.genre_model.predict_proba(x)[0]
+        raw = float(self._raw_energy(x)[0])
+        energy = float(np.clip(raw / self.energy_scale[0 if raw < 0 else 1], -1.0, 1.0))
+        sims = (self.known_examples @ x[0]).astype(np.float64)
+        best = int(sims.argmax())
+        return probs, energy, bool(sims[best] >= self.known_similarity), self.known_texts[best], float(sims[best])
+
+
+def speed_quantile(energy: float) -> float:
+    """The quantile of a genre's training speeds an energy (-1 to +1) asks for."""
+    if not math.isfinite(energy):
+        return 0.5
+    return 0.5 + SPEED_SPAN * max(-1.0, min(1.0, energy))
+
+
+__all__ = ["ATTRIBUTES_FILE", "TextReading", "TextRouter", "load_attributes", "sentences", "speed_quantile"]

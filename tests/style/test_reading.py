@@ -1,0 +1,124 @@
+"""The free-text router (style_text_reading=router): a genre, an energy and whether the text is known, each fitted on
+training descriptions; checked with a bag-of-words embedding whose answers can be worked out by hand, then with the
+shipped MiniLM on the shipped descriptions."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+import torch
+
+from dgsdp.style.reading import SPEED_SPAN, TextReading, TextRouter, load_attributes, sentences, speed_quantile
+
+GENRES = ["break", "house", "ballet"]
+DESCRIPTIONS = [
+    ["spins on the floor with the legs whirling", "hands on the floor, legs whirling round. Then a frozen spin."],
+    ["feet shuffling and sliding on the floor", "quick shuffling feet that slide and jack"],
+    ["pointed toes and long graceful extensions", "graceful turns on pointed toes"],
+]
+ATTRIBUTES = {"slow": ["calm", "lazy"], "fast": ["frantic", "rapid"], "templates": ["{word} {genre}"],
+              "neutral_templates": ["{genre}"]}  # fmt: skip
+
+
+def words(text: str) -> list[str]:
+    return re.findall(r"[a-z]+", text.lower())
+
+
+VOCAB = sorted({w for ds in DESCRIPTIONS for d in ds for w in words(d)} | set(GENRES) | {"calm", "lazy", "frantic",
+               "rapid", "sitting", "chair"})  # fmt: skip
+
+
+def bag_of_words(texts: list[str]) -> torch.Tensor:
+    """(N, V) word counts: texts that share no word have similarity 0."""
+    out = torch.zeros(len(texts), len(VOCAB))
+    for i, text in enumerate(texts):
+        for w in words(text):
+            if w in VOCAB:
+                out[i, VOCAB.index(w)] += 1
+    return out + 1e-6  # no all-zero row
+
+
+@pytest.fixture(scope="module")
+def router() -> TextRouter:
+    return TextRouter(DESCRIPTIONS, bag_of_words, GENRES, ATTRIBUTES)
+
+
+def test_sentences_of_a_description_of_several():
+    assert sentences("One two three. Four five six; seven eight nine!") == ["One two three.", "Four five six;",
+                                                                            "seven eight nine!"]  # fmt: skip
+    assert sentences("Only one sentence here.") == [] and sentences("Too. Short. Here are enough words.") == []
+
+
+def test_the_router_reads_a_genre_an_energy_and_whether_it_knows_the_text(router):
+    assert router.texts[:3] == [DESCRIPTIONS[0][0], DESCRIPTIONS[0][1], "hands on the floor, legs whirling round."]
+    assert router.groups[:4].tolist() == [0, 1, 1, 1]  # a description and its sentences share a group
+    probs, energy, known, closest, similarity = router.read("whirling spins")
+    assert probs.argmax() == 0 and probs.sum() == pytest.approx(1.0) and known
+    assert closest == DESCRIPTIONS[0][0] and similarity == pytest.approx(
+        float(torch.nn.functional.cosine_similarity(bag_of_words(["whirling spins"]), bag_of_words([closest]))[0])
+    )
+    assert router.read("graceful pointed toes")[0].argmax() == 2
+    # the known threshold: the least similar description to its nearest other one (here: shared words)
+    x = torch.nn.functional.normalize(bag_of_words(router.texts), dim=-1)
+    sims = (x @ x.T).numpy()
+    heads = [0, 1, 4, 5, 6, 7]  # the descriptions (1 is followed by its two sentences)
+    nearest = [max(sims[h, j] for j in range(len(x)) if router.groups[j] != router.groups[h]) for h in heads]
+    assert router.known_similarity == pytest.approx(min(nearest), abs=1e-6)
+    assert not router.read("sitting chair")[2]  # no word in common with anything it knows
+    # energy: the calibration words read slow and fast around a genre; the genre's name alone near its usual pace
+    assert router.read("frantic house")[1] > 0.5 and router.read("lazy house")[1] < -0.5
+    assert abs(router.read("house")[1]) < 0.5
+
+
+def test_energy_asks_for_a_quantile_of_the_genre_speeds():
+    assert speed_quantile(0.0) == 0.5 and speed_quantile(1.0) == pytest.approx(0.5 + SPEED_SPAN)
+    assert speed_quantile(-3.0) == pytest.approx(0.5 - SPEED_SPAN) and speed_quantile(float("nan")) == 0.5
+
+
+def test_a_reading_describes_itself_in_one_line():
+    known = TextReading("fast krump", "router", (("Krump", 0.9), ("House", 0.1)), "Krump", 1.0, True, "x", 0.7, 0.55)
+    assert known.describe() == (
+        "style 'fast krump': read as Krump (Krump 0.90, House 0.10); energy +1.00 (faster), at 0.55 m/s"
+    )
+    unknown = TextReading("a chair", "router", (("Waack", 0.4),), None, 0.0, False, "a long text of many words here "
+                          "to be cut short now", 0.31)  # fmt: skip
+    assert unknown.describe() == (
+        "style 'a chair' resembles none of the descriptions this model knows (the closest, 'a long text of many "
+        "words here to ...', at similarity 0.31): danced in no particular genre"
+    )
+    assert TextReading("krump", "genre", genre="Krump").describe() == "style 'krump': the genre Krump"
+    assert "own text embedding" in TextReading("x", "own").describe()
+
+
+def test_the_shipped_attribute_words_leave_out_the_benchmarks_words():
+    from dgsdp.benchmarks.style import MODIFIER_PAIRS
+
+    attributes = load_attributes()
+    checked = {w for pair in MODIFIER_PAIRS for phrase in pair for w in phrase.replace("{genre}", "").split()}
+    assert checked == {"slow", "fast", "gentle", "explosive"}
+    assert not checked & set(attributes["slow"] + attributes["fast"])
+    assert not {t.format(word="{w}", genre="{genre}") for t in attributes["templates"]} & {
+        p for pair in MODIFIER_PAIRS for p in pair
+    }
+
+
+@pytest.mark.timeout(300)
+def test_minilm_reads_the_shipped_descriptions_way():
+    """The shipped reader (MiniLM, the augmented descriptions): genre names go to their genre, a slower word reads
+    slower than a faster one for every genre, and a text about no dance is unknown."""
+    from dgsdp.resources import RESOURCES_DIR
+    from dgsdp.style import MiniLMTextEncoder
+    from dgsdp.style.embeddings import load_prompts
+    from dgsdp.style.vocab import AISTPP_GENRES
+
+    per_genre = load_prompts(RESOURCES_DIR / "style_prompts" / "aistpp_augmented.yaml", AISTPP_GENRES)
+    names = [n.lower() for n in AISTPP_GENRES.names]
+    reader = TextRouter(per_genre, MiniLMTextEncoder().encode, names)
+    for g, name in enumerate(names):
+        probs, energy, known, _, _ = reader.read(f"{name} dance")
+        assert probs.argmax() == g and known, name
+        assert reader.read(f"slow {name}")[1] < reader.read(f"fast {name}")[1], name
+    assert not reader.read("sitting still on a chair")[2]
+    assert np.isclose(reader.read("krump")[0].sum(), 1.0)
