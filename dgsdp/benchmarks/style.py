@@ -11,7 +11,8 @@ features of 5 s windows, fitted on the training split's dances):
 - **free text**: the same clips asked with descriptions that are *not* in the training prompts (the held-out list
   ``dgsdp/resources/style_heldout/aistpp.yaml``, which nothing trains on), classified as the genre they describe;
   ``--heldout aistpp_second`` takes a second list, written after generate.py's text-reading temperature was chosen
-  on the first;
+  on the first, ``--heldout aistpp_third`` a third, of movement and feeling only, written before the router was
+  fitted; several lists in one run are each measured on the same clips (the first is the last line's);
 - **speed rank**: the Spearman correlation, over the genres, of each genre's training speed with the mean speed of
   the dances asked in it (does a faster genre get a faster dance?);
 - **modifier pairs**: for every genre, on its first held-out clip with one seed, a description with a speed or
@@ -213,7 +214,7 @@ class StyleBenchmark:
         max_clips: int | None = None,
         raw_only: bool = False,
         progress: bool = True,
-        heldout: str | None = None,
+        heldout: str | Sequence[str] | None = None,
     ) -> None:
         from dgsdp.cli.config import compose_config
         from dgsdp.cli.generate import generate_settings
@@ -231,7 +232,8 @@ class StyleBenchmark:
             raise ConfigError(f"--max-clips must be at least 2, got {max_clips}")
         self.max_clips = max_clips
         self.raw_only = bool(raw_only)  # quick screening: the finished clips are not made
-        self.heldout_file = resolve_heldout(heldout)
+        lists = [heldout] if heldout is None or isinstance(heldout, str) else list(heldout)
+        self.heldout_files = [resolve_heldout(h) for h in lists]
         self.progress = progress
         self.vocab = self.generator.embedder().vocab
         self.fps = self.generator.fps
@@ -304,7 +306,7 @@ class StyleBenchmark:
             "sampling": dataclasses.asdict(self.job.sampling),
             # how free text was read (generate.py's style_text_reading, _temperature and _descriptions)
             "text_reading": dataclasses.asdict(self.generator.text_choice),
-            "heldout_descriptions": self.heldout_file.name,
+            "heldout_descriptions": self.heldout_files[0].name,
             "genres": list(self.vocab.codes),
             "n_clips": len(clips),
             "gt_acc": accuracy(genres, gt),
@@ -349,24 +351,29 @@ class StyleBenchmark:
     def _free_text(
         self, result: dict[str, Any], requests: list[Any], genres: list[int], beats: list[Any], judge: Judge
     ) -> None:
-        """The held-out clips asked with held-out descriptions of their genres, in turn."""
-        texts = self._heldout_texts()
-        text_requests, text_genres, named = [], [], []
-        for k, (request, genre) in enumerate(zip(requests, genres)):
-            options = texts[genre]
-            pick = k % len(options)
-            text_requests.append(
-                dataclasses.replace(request, style=self.generator.embed_style(f"text: {options[pick]}"))
-            )
-            text_genres.append(genre)
-            named.append(pick < NAMED_FIRST.get(self.heldout_file.stem, 2))  # those that name the genre come first
-        text_dances = self._sample(text_requests, beats)
-        named_arr = np.asarray(named)
-        for name, joints in text_dances.items():
-            predicted = judge.predict(joints)
-            result[name]["text_acc"] = accuracy(text_genres, predicted)
-            result[name]["text_acc_named"] = accuracy(np.asarray(text_genres)[named_arr], predicted[named_arr])
-            result[name]["text_acc_unnamed"] = accuracy(np.asarray(text_genres)[~named_arr], predicted[~named_arr])
+        """The held-out clips asked with the descriptions of each held-out list, of their genres in turn: per list
+        (``text_by_list``), and the first list's as ``text_acc``."""
+        for i, path in enumerate(self.heldout_files):
+            texts = self._heldout_texts(path)
+            text_requests, named = [], []
+            for k, (request, genre) in enumerate(zip(requests, genres)):
+                options = texts[genre]
+                pick = k % len(options)
+                style = self.generator.embed_style(f"text: {options[pick]}")
+                text_requests.append(dataclasses.replace(request, style=style))
+                named.append(pick < NAMED_FIRST.get(path.stem, 2))  # those that name the genre come first
+            text_dances = self._sample(text_requests, beats)
+            named_arr, genres_arr = np.asarray(named), np.asarray(genres)
+            for name, joints in text_dances.items():
+                predicted = judge.predict(joints)
+                figures = {
+                    "text_acc": accuracy(genres, predicted),
+                    "text_acc_named": accuracy(genres_arr[named_arr], predicted[named_arr]),
+                    "text_acc_unnamed": accuracy(genres_arr[~named_arr], predicted[~named_arr]),
+                }
+                result[name].setdefault("text_by_list", {})[path.stem] = figures
+                if i == 0:
+                    result[name].update(figures)
 
     def _modifiers(self, result: dict[str, Any], requests: list[Any], genres: list[int], beats: list[Any]) -> None:
         """Each genre's first clip asked with each of :data:`MODIFIER_PAIRS`, one seed: the fraction of pairs whose
@@ -405,10 +412,10 @@ class StyleBenchmark:
             frames[seq.genre_index] = frames.get(seq.genre_index, 0) + n
         return {g: total[g] / frames[g] for g in sorted(total) if frames[g] > 0}
 
-    def _heldout_texts(self) -> list[list[str]]:
+    def _heldout_texts(self, path: Path) -> list[list[str]]:
         from dgsdp.style.embeddings import load_prompts
 
-        return load_prompts(self.heldout_file, self.vocab)
+        return load_prompts(path, self.vocab)
 
     def _schedules(self, test: list[Any], judge: Judge) -> dict[str, Any]:
         """Each of the first half of the genres followed by the genre half the vocabulary away, 10 s each, on the
@@ -546,6 +553,11 @@ def report_lines(result: dict[str, Any]) -> list[str]:
         f"{'free text (held out)':28s}{both('text_acc')}   ({result['heldout_descriptions']})",
         f"{'  naming the genre':28s}{both('text_acc_named')}",
         f"{'  movement only':28s}{both('text_acc_unnamed')}",
+        *(
+            f"{'free text, ' + stem:28s}{_pct(figures['text_acc']):>8s}"
+            f"{_pct(((fin.get('text_by_list') or {}).get(stem) or {}).get('text_acc')):>10s}"
+            for stem, figures in list((raw.get("text_by_list") or {}).items())[1:]
+        ),
         f"{'genres within 30% of speed':28s}{count(raw):>8s}{count(fin):>10s}",
         f"{'speed rank correlation':28s}{both('speed_spearman')}   (Spearman, genres' training speed vs danced)",
         f"{'modifier pairs right':28s}{both('modifiers_right')}   (slow/fast, gentle/explosive: faster word faster)",
@@ -650,8 +662,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-clips", type=int, default=None, help="at most this many held-out clips (balanced)")
     parser.add_argument("--raw-only", action="store_true", help="quick screening: skip the finished clips")
     parser.add_argument(
-        "--heldout", default=None,
-        help="the held-out descriptions: a shipped list's name (aistpp, the default; aistpp_second) or a yaml path",
+        "--heldout", action="append", default=None,
+        help="the held-out descriptions: a shipped list's name (aistpp, the default; aistpp_second, aistpp_third) or "
+        "a yaml path; repeat it to measure several lists on the same clips",
     )  # fmt: skip
     parser.add_argument("--json", default=None, help="write every figure to this JSON file")
     parser.add_argument("--png", default=None, help="write the confusion matrices to this png")

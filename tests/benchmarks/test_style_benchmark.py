@@ -150,6 +150,7 @@ def test_benchmark_end_to_end(prompt_checkpoint, capsys):
     code = sb.main([
         "--checkpoint", run["checkpoint"], "--data-root", run["root"], "--max-clips", "10", "--no-progress",
         "--json", str(out / "style.json"), "--png", str(out / "confusion.png"), "--heldout", "aistpp_second",
+        "--heldout", "aistpp_third",
         "device=cpu", "sampling.steps=2", f"paths.cache_dir={run['cache']}",
     ])  # fmt: skip
     assert code == 0
@@ -160,6 +161,7 @@ def test_benchmark_end_to_end(prompt_checkpoint, capsys):
     assert data["text_reading"] == {"how": "off", "temperature": None, "descriptions": None}  # its own embedding
     assert data["heldout_descriptions"] == "aistpp_second.yaml"
     assert any(line.startswith("free text (held out)") and "(aistpp_second.yaml)" in line for line in printed)
+    assert any(line.startswith("free text, aistpp_third") for line in printed)  # a second list, the same clips
     for name in ("raw", "finished"):
         figures = data[name]
         matrix = np.asarray(figures["confusion"])
@@ -167,6 +169,9 @@ def test_benchmark_end_to_end(prompt_checkpoint, capsys):
         assert matrix.sum(axis=1).tolist() == [1] * 10  # --max-clips takes the genres in turn
         assert figures["genre_acc"] == pytest.approx(np.trace(matrix) / 10)
         assert 0.0 <= figures["text_acc"] <= 1.0
+        assert set(figures["text_by_list"]) == {"aistpp_second", "aistpp_third"}
+        assert figures["text_acc"] == figures["text_by_list"]["aistpp_second"]["text_acc"]
+        assert np.isnan(figures["text_by_list"]["aistpp_third"]["text_acc_named"])  # the third names no genre
         assert figures["genre_speed_within"] == sum(sb.within(r) for r in figures["speed_ratio"].values())
         pairs = figures["modifier_pairs"]  # each genre's first clip, three pairs of phrasings
         assert len(pairs) == 30 and {p["genre"] for p in pairs} == set(AISTPP_GENRES.codes)
