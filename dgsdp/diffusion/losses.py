@@ -15,6 +15,9 @@
 
 FK runs on unnormalised values (the normaliser is passed in), so the FK and foot terms are in metres. EDGE runs
 FK on normalised values; its author reported no difference. Unnormalising keeps the joint positions physical.
+
+The skeleton's rest offsets and foot joints are made into tensors once per skeleton, device and dtype and reused
+at every step: a tensor made from a list on a GPU is copied from the host and waits for the device first.
 """
 
 from __future__ import annotations
@@ -24,8 +27,28 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from dgsdp.motion import SMPL24, MinMaxNormalizer, Skeleton, unpack_pose
-from dgsdp.motion.representation import CONTACT_CHANNELS, ROOT_CHANNELS
+from dgsdp.motion import SMPL24, MinMaxNormalizer, Skeleton, forward_kinematics, unpack_pose
+from dgsdp.motion.representation import CONTACT_CHANNELS, ROOT_CHANNELS, PoseParts
+
+_SKELETON_TENSORS: dict[tuple[Skeleton, torch.device, torch.dtype], tuple[torch.Tensor, torch.Tensor]] = {}
+
+
+def _skeleton_tensors(
+    skeleton: Skeleton, device: torch.device, dtype: torch.dtype
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The skeleton's rest offsets (J, 3) in ``dtype`` and its foot joints' indices (4,) on ``device``, made once
+    and kept (a training step would otherwise copy them from the host three times). Made as ordinary tensors even
+    under inference mode (a validation step), so that later training steps can save them for the backward pass."""
+    key = (skeleton, device, dtype)
+    cached = _SKELETON_TENSORS.get(key)
+    if cached is None:
+        with torch.inference_mode(False):
+            cached = (
+                skeleton.rest_offsets(dtype=dtype, device=device),
+                torch.tensor(skeleton.foot_joints, dtype=torch.long, device=device),
+            )
+        _SKELETON_TENSORS[key] = cached
+    return cached
 
 
 @dataclass
@@ -37,6 +60,12 @@ class LossWeights:
     contact_threshold: float = 0.95
     pause: float = 0.0
     root: float = 0.0
+
+
+def _joints(parts: PoseParts, skeleton: Skeleton) -> torch.Tensor:
+    """``parts.joints()`` (FK joint positions, z-up metres) with the skeleton's kept rest offsets."""
+    offsets = _skeleton_tensors(skeleton, parts.rotmats.device, parts.rotmats.dtype)[0]
+    return forward_kinematics(parts.rotmats, parts.root_trans, offsets, skeleton=skeleton)
 
 
 def dance_loss(
@@ -61,12 +90,13 @@ def dance_loss(
         terms["root"] = F.mse_loss(pred_vel[..., root], true_vel[..., root])
     if weights.fk or weights.foot:
         pred_parts = unpack_pose(normalizer.unnormalize(pred_x0), skeleton)
-        pred_joints = pred_parts.joints()
+        pred_joints = _joints(pred_parts, skeleton)
         if weights.fk:
-            terms["fk"] = F.mse_loss(pred_joints, unpack_pose(normalizer.unnormalize(x0), skeleton).joints())
+            terms["fk"] = F.mse_loss(pred_joints, _joints(unpack_pose(normalizer.unnormalize(x0), skeleton), skeleton))
         if weights.foot:
             contact = (pred_parts.contacts > weights.contact_threshold).to(pred_x0.dtype)  # (B, T, 4)
-            feet = pred_joints[:, :, list(skeleton.foot_joints)]  # (B, T, 4, 3)
+            foot_joints = _skeleton_tensors(skeleton, pred_joints.device, pred_joints.dtype)[1]
+            feet = pred_joints.index_select(2, foot_joints)  # (B, T, 4, 3)
             foot_vel = (feet[:, 1:] - feet[:, :-1]) * contact[:, :-1, :, None]
             terms["foot"] = F.mse_loss(foot_vel, torch.zeros_like(foot_vel))
     terms["loss"] = sum(getattr(weights, name) * value for name, value in terms.items())

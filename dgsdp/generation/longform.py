@@ -211,8 +211,23 @@ class ChunkedDenoiser(nn.Module):
             for sl in self._slices(batch)
         ]
 
-    def forward(self, x_t, t, music=None, style=None, keep_music=None, keep_style=None, *, cond=None, guidance=None):
+    def forward(
+        self,
+        x_t: torch.Tensor,
+        t: torch.Tensor,
+        music: torch.Tensor | None = None,
+        style: torch.Tensor | None = None,
+        keep_music: torch.Tensor | None = None,
+        keep_style: torch.Tensor | None = None,
+        *,
+        cond: list | None = None,
+        guidance: torch.Tensor | None = None,
+        same_step: bool = False,
+    ) -> torch.Tensor:
+        """The inner denoiser's prediction, chunk by chunk; ``same_step`` (with ``cond``) is passed on (see
+        :meth:`~dgsdp.model.denoiser.DanceDenoiser.forward`)."""
         slices = self._slices(x_t.shape[0])
+        step = {"same_step": True} if same_step else {}
 
         def weights(sl: slice) -> dict:
             """A guidance-distilled student's weights of rows ``sl`` (no argument for other denoisers)."""
@@ -220,7 +235,10 @@ class ChunkedDenoiser(nn.Module):
 
         if cond is not None:
             return torch.cat(
-                [self.denoiser(x_t[sl], t[sl], cond=c, **weights(sl)) for sl, c in zip(slices, cond, strict=True)]
+                [
+                    self.denoiser(x_t[sl], t[sl], cond=c, **step, **weights(sl))
+                    for sl, c in zip(slices, cond, strict=True)
+                ]
             )
         if len(slices) == 1:
             return self.denoiser(x_t, t, music, style, keep_music, keep_style, **weights(slice(None)))

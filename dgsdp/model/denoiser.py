@@ -443,11 +443,15 @@ class DanceDenoiser(nn.Module):
         *,
         cond: DenoiserCondition | None = None,
         guidance: torch.Tensor | None = None,
+        same_step: bool = False,
     ) -> torch.Tensor:
         """x_t (B, T, pose_dim), t (B,), music (B, T, Da), style (B, ds) or (B, T, ds); keep_* (B,) bool
         (False = condition dropped); or, instead of music, style and keep_*, ``cond`` from :meth:`condition`
         (sampling). ``guidance`` (B, guidance_inputs): the guidance weights of a guidance-distilled student
-        (music, then style). Returns x0 prediction (B, T, pose_dim)."""
+        (music, then style). ``same_step`` (with ``cond``): the caller knows that every row is at the same
+        diffusion step with the same guidance weights, as at each step of a sampler, so the rows that share the
+        null music's keys and values share their time tokens too without a comparison read back from the device.
+        Returns x0 prediction (B, T, pose_dim)."""
         b, n, _ = x_t.shape
         if n > self.seq_len:
             raise ValueError(f"sequence of {n} frames is longer than the model's {self.seq_len}; use long-form")
@@ -455,7 +459,7 @@ class DanceDenoiser(nn.Module):
         t_cond = self.time_film(t_hidden)
         t_tokens = self.time_tokens(t_hidden).view(b, 2, self.d_model)
         if cond is not None:
-            return self._forward_cached(x_t, t_cond, t_tokens, cond)
+            return self._forward_cached(x_t, t_cond, t_tokens, cond, same_step)
 
         keep_music = self._keep(keep_music, b, x_t.device)
         keep_style = self._keep(keep_style, b, x_t.device)
@@ -509,7 +513,12 @@ class DanceDenoiser(nn.Module):
         return None if self.modulations is None else self.modulations[min(i, len(self.modulations) - 1)]
 
     def _forward_cached(
-        self, x_t: torch.Tensor, t_cond: torch.Tensor, t_tokens: torch.Tensor, cond: DenoiserCondition
+        self,
+        x_t: torch.Tensor,
+        t_cond: torch.Tensor,
+        t_tokens: torch.Tensor,
+        cond: DenoiserCondition,
+        same_step: bool = False,
     ) -> torch.Tensor:
         b, n, _ = x_t.shape
         if (cond.batch_size, cond.n_frames) != (b, n):
@@ -523,8 +532,9 @@ class DanceDenoiser(nn.Module):
             h = h + cond.aligned
         shared = cond.shared_rows
         # the shared rows' time tokens are written once when those rows are at the same step (sampling); otherwise
-        # this call works on a full copy of their keys and values
-        expand = bool(shared) and not bool((t_memory[:shared] == t_memory[:1]).all())
+        # this call works on a full copy of their keys and values. A sampler says so (same_step): only other callers
+        # pay for the comparison, which waits for the device to read its result back.
+        expand = bool(shared) and not same_step and not bool((t_memory[:shared] == t_memory[:1]).all())
         if shared and not expand:
             t_memory = torch.cat((t_memory[:1], t_memory[shared:]))
         for i, layer in enumerate(self.layers):

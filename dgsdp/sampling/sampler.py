@@ -81,16 +81,27 @@ class PreparedCondition:
     For each set of passes (keep_music, keep_style) it holds the keep masks and the condition repeated over the
     passes, and, for denoisers with a ``condition(music, style, keep_music, keep_style)`` method, the denoiser's
     own conditioning (music encoder output, style, cross-attention keys and values) computed once.
+
+    ``same_step``: every call of the run has all its rows at one diffusion step with the same guidance weights (a
+    sampler's loop); the denoiser is told so with its conditioning (``same_step=True``), which spares it a read
+    back from the device per step.
     """
 
     def __init__(
-        self, denoiser: Callable, cond: Condition, batch: int, n_frames: int, device: torch.device | str
+        self,
+        denoiser: Callable,
+        cond: Condition,
+        batch: int,
+        n_frames: int,
+        device: torch.device | str,
+        same_step: bool = False,
     ) -> None:
         self.denoiser = denoiser
         self.cond = cond
         self.batch = batch
         self.n_frames = n_frames
         self.device = device
+        self.same_step = same_step
         self._by_passes: dict[Passes, dict] = {}
 
     def inputs(self, passes: Passes) -> dict:
@@ -110,7 +121,7 @@ class PreparedCondition:
             cached = condition(self.cond.music, style, keep_music, keep_style, n_frames=self.n_frames, batch=k * b,
                                music_rows=rows)  # fmt: skip
             if cached is not None:
-                return {"cond": cached}
+                return {"cond": cached, "same_step": True} if self.same_step else {"cond": cached}
         music = repeat_passes(self.cond.music, k)
         return {"music": music, "style": style, "keep_music": keep_music, "keep_style": keep_style}
 
@@ -161,12 +172,13 @@ def rescale_guided(guided: torch.Tensor, conditional: torch.Tensor, amount: floa
 
 
 def guidance_weights(denoiser: torch.nn.Module, guidance: Guidance, batch: int, like: torch.Tensor) -> dict:
-    """The ``guidance=`` input of a guidance-distilled student (B, guidance_inputs), or no argument."""
+    """The ``guidance=`` input of a guidance-distilled student (B, guidance_inputs), or no argument. Filled on the
+    device (a tensor made from a list would be copied from the host, which waits for the device, every step)."""
     n = getattr(denoiser, "guidance_inputs", 0)
     if not n:
         return {}
-    weights = torch.tensor([guidance.music_weight, guidance.style_weight][:n], device=like.device, dtype=like.dtype)
-    return {"guidance": weights.expand(batch, n)}
+    columns = [like.new_full((batch, 1), w) for w in (guidance.music_weight, guidance.style_weight)[:n]]
+    return {"guidance": columns[0] if n == 1 else torch.cat(columns, dim=1)}
 
 
 class Sampler:
@@ -281,7 +293,7 @@ class Sampler:
                 raise ValueError("a mask needs the known motion it refers to")
             mask = mask.to(device=device, dtype=x.dtype)
             known = known.to(device=device, dtype=x.dtype)
-        prepared = PreparedCondition(self.denoiser, cond, b, shape[1], device)
+        prepared = PreparedCondition(self.denoiser, cond, b, shape[1], device, same_step=True)  # t: one step per call
         solver = make_solver(method, self.diffusion, ts) if method in SOLVERS else None
         z = x  # the initial noise: the known region's ODE path for the solvers
 

@@ -51,10 +51,10 @@ def solver_timesteps(diffusion: GaussianDiffusion, steps: int, spacing: str = "t
             return uniform
         lam = _lambdas(diffusion)
         targets = torch.linspace(float(lam[uniform[1]]), float(lam[0]), steps, dtype=torch.float64)[:-1]
+        nearest = (lam[None, :] - targets[:, None]).abs().argmin(dim=1).tolist()  # one read for all the steps
         out = [uniform[0]]
-        for k, v in enumerate(targets, start=2):
+        for k, t in enumerate(nearest, start=2):
             # nearest training step (lambda decreases with t), strictly below the last, leaving room for the rest
-            t = int((lam - v).abs().argmin())
             out.append(max(min(t, out[-1] - 1), steps - k))
         return out
     raise ValueError(f"unknown timestep spacing {spacing!r}; use one of {SPACINGS}")
@@ -75,11 +75,11 @@ class MultistepSolver:
     """
 
     def __init__(self, diffusion: GaussianDiffusion, timesteps: list[int]) -> None:
-        ab = diffusion.alpha_bar.detach().double().cpu()
+        ab = diffusion.alpha_bar.detach().double().cpu().tolist()  # read once: the coefficients are host numbers
         self.timesteps = list(timesteps)
         # per point: alpha, sigma, lambda; the final point is x0 (alpha 1, sigma 0, lambda +inf)
-        self.alpha = [math.sqrt(float(ab[t])) for t in self.timesteps] + [1.0]
-        self.sigma = [math.sqrt(1.0 - float(ab[t])) for t in self.timesteps] + [0.0]
+        self.alpha = [math.sqrt(ab[t]) for t in self.timesteps] + [1.0]
+        self.sigma = [math.sqrt(1.0 - ab[t]) for t in self.timesteps] + [0.0]
         self.lam = [math.log(a / s) for a, s in zip(self.alpha[:-1], self.sigma[:-1], strict=True)] + [math.inf]
         self.x0s: list[torch.Tensor] = []  # x0 predictions at the points visited so far (the last two are kept)
 

@@ -23,6 +23,12 @@ def step_seed(seed: int, step: int, rank: int = 0, world_size: int = 1) -> int:
     return seed * 1_000_003 + step * world_size + rank
 
 
+def _progress_every(trainer: L.Trainer | None) -> int:
+    """Every how many training steps the progress bar's loss is refreshed: the trainer's ``log_every_n_steps``
+    (every step without a trainer)."""
+    return max(1, int(getattr(trainer, "log_every_n_steps", 1) or 1))
+
+
 class DanceDiffusion(TrainedModel, L.LightningModule):
     """Trains the denoiser on normalised windows of pose vectors; samples with the EMA weights (see
     :class:`TrainedModel`)."""
@@ -72,8 +78,14 @@ class DanceDiffusion(TrainedModel, L.LightningModule):
     # --- Lightning hooks ---------------------------------------------------------------------------------
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
         terms = self._loss(self.denoiser, batch, train=True)
-        self.log_dict({f"train/{k}": v for k, v in terms.items()}, prog_bar=False, batch_size=batch["motion"].shape[0])
-        self.log("loss", terms["loss"], prog_bar=True, logger=False, batch_size=batch["motion"].shape[0])
+        size = batch["motion"].shape[0]
+        self.log_dict({f"train/{k}": v for k, v in terms.items()}, prog_bar=False, batch_size=size)
+        # Lightning turns every value shown in the progress bar into a number after every batch, which on a GPU waits
+        # for the device each step. The bar's loss is a host copy instead, taken once every log_every_n_steps steps
+        # and at the start of each epoch; in between the bar keeps the last one. (The train/ terms reach the logger
+        # every log_every_n_steps steps.)
+        if batch_idx == 0 or self.global_step % _progress_every(self._trainer) == 0:
+            self.log("loss", terms["loss"].detach().cpu(), prog_bar=True, logger=False, batch_size=size)
         return terms["loss"]
 
     def on_fit_start(self) -> None:

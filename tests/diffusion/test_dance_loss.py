@@ -184,3 +184,31 @@ def test_root_term_is_the_velocity_error_of_the_root_translation_alone():
     moved[..., 7:] += torch.randn(2, 6, 144)  # the rotations do not enter it
     assert torch.allclose(dance_loss(moved, x0, None, only("root"))["root"], expected, atol=1e-7)
     assert "root" not in dance_loss(pred, x0, None, only("velocity"))  # off (weight 0): not computed
+
+
+def test_fk_and_foot_terms_equal_the_skeletons_own_fk_after_a_call_under_inference_mode(normalizer):
+    """The rest offsets and foot joints are made into tensors once per device and kept (no copy from the host per
+    step): a first call under inference mode (a validation step) must not leave tensors that a training step cannot
+    save for its backward pass, and the terms equal those of PoseParts.joints() and list indexing."""
+    from dgsdp.motion import unpack_pose
+
+    rng = np.random.default_rng(11)
+    trans = np.cumsum(rng.uniform(-0.05, 0.05, (B, T, 3)), axis=1)
+    contacts = (rng.uniform(size=(B, T, 4)) > 0.3).astype(float)
+    pred = normalizer.normalize(motion(trans + 0.05, rot_z(0.3), contacts))
+    x0 = normalizer.normalize(motion(trans))
+    weights = LossWeights(simple=0.0, velocity=0.0)
+    with torch.inference_mode():
+        dance_loss(pred.double(), x0.double(), normalizer.double(), weights)  # float64: a dtype of its own
+        dance_loss(pred, x0, normalizer, weights)
+    grad_pred = pred.clone().requires_grad_(True)
+    terms = dance_loss(grad_pred, x0, normalizer, weights)
+    terms["loss"].backward()
+    assert torch.isfinite(grad_pred.grad).all()
+    pred_joints = unpack_pose(normalizer.unnormalize(pred)).joints()
+    fk = torch.nn.functional.mse_loss(pred_joints, unpack_pose(normalizer.unnormalize(x0)).joints())
+    assert torch.equal(terms["fk"].detach(), fk)
+    on = (unpack_pose(normalizer.unnormalize(pred)).contacts > weights.contact_threshold).float()
+    feet = pred_joints[:, :, list(FEET)]
+    foot_vel = (feet[:, 1:] - feet[:, :-1]) * on[:, :-1, :, None]
+    assert torch.equal(terms["foot"].detach(), foot_vel.square().mean())
