@@ -15,8 +15,8 @@ features of 5 s windows, fitted on the training split's dances):
   fitted; several lists in one run are each measured on the same clips (the first is the last line's);
 - **speed rank**: the Spearman correlation, over the genres, of each genre's training speed with the mean speed of
   the dances asked in it (does a faster genre get a faster dance?);
-- **modifier pairs**: for every genre, on its first held-out clip with one seed, a description with a speed or
-  energy word and its opposite (:data:`MODIFIER_PAIRS`: "slow krump" / "fast krump", "gentle krump" /
+- **modifier pairs**: for every genre, on one clip of each of its first three held-out dances with one seed, a
+  description with a speed or energy word and its opposite (:data:`MODIFIER_PAIRS`: "slow krump" / "fast krump", "gentle krump" /
   "explosive krump", "slow gentle krump" / "fast explosive krump"); a pair is ordered right when the faster word's
   dance has the higher mean joint speed;
 - **a style schedule**: two genres, 10 s each, on held-out songs; the accuracy of each span's 5 s windows (away
@@ -67,6 +67,7 @@ VARIANTS = ("raw", "finished")
 MODIFIER_PAIRS = (("slow {genre}", "fast {genre}"), ("gentle {genre}", "explosive {genre}"),
                   ("slow gentle {genre}", "fast explosive {genre}"))  # fmt: skip
 """(slower, faster) phrasings of each genre's name: the modifier check's descriptions."""
+MODIFIER_SONGS = 3  # the modifier check's clips per genre, each from another held-out dance (and song)
 
 
 # --- pure measures (tested on hand-made figures) ------------------------------------------------------------------
@@ -334,7 +335,7 @@ class StyleBenchmark:
         else:
             self._free_text(result, requests, genres, beats, judge)
             stage("modifier pairs")
-            self._modifiers(result, requests, genres, beats)
+            self._modifiers(result, requests, genres, beats, clips)
         bar.update()
 
         stage("style schedules")
@@ -375,12 +376,19 @@ class StyleBenchmark:
                 if i == 0:
                     result[name].update(figures)
 
-    def _modifiers(self, result: dict[str, Any], requests: list[Any], genres: list[int], beats: list[Any]) -> None:
-        """Each genre's first clip asked with each of :data:`MODIFIER_PAIRS`, one seed: the fraction of pairs whose
-        faster-worded dance moves faster, and each pair's speeds."""
-        firsts = {g: k for k, g in reversed(list(enumerate(genres)))}
+    def _modifiers(
+        self, result: dict[str, Any], requests: list[Any], genres: list[int], beats: list[Any], clips: list[Any]
+    ) -> None:
+        """Each genre's first clip of each of its first :data:`MODIFIER_SONGS` held-out dances, asked with each of
+        :data:`MODIFIER_PAIRS`, one seed: the fraction of pairs whose faster-worded dance moves faster, and each
+        pair's speeds."""
+        chosen: dict[int, dict[str, int]] = {}  # genre -> dance name -> its first clip
+        for k, (g, clip) in enumerate(zip(genres, clips)):
+            dances = chosen.setdefault(g, {})
+            if clip.seq.name not in dances and len(dances) < MODIFIER_SONGS:
+                dances[clip.seq.name] = k
         pair_requests, pair_beats, rows = [], [], []
-        for g, k in sorted(firsts.items()):
+        for g, k in sorted((g, k) for g, dances in chosen.items() for k in dances.values()):
             name = self.vocab.names[g].lower()
             for slow, fast in MODIFIER_PAIRS:
                 texts = (slow.format(genre=name), fast.format(genre=name))
@@ -389,7 +397,8 @@ class StyleBenchmark:
                         dataclasses.replace(requests[k], style=self.generator.embed_style(f"text: {text}"))
                     )
                     pair_beats.append(beats[k])
-                rows.append({"genre": self.vocab.codes[g], "slower": texts[0], "faster": texts[1]})
+                rows.append({"genre": self.vocab.codes[g], "dance": clips[k].seq.name, "slower": texts[0],
+                             "faster": texts[1]})  # fmt: skip
         dances = self._sample(pair_requests, pair_beats)
         for name, joints in dances.items():
             speeds = [mean_joint_speed(j, self.fps) for j in joints]

@@ -173,8 +173,9 @@ def test_benchmark_end_to_end(prompt_checkpoint, capsys):
         assert figures["text_acc"] == figures["text_by_list"]["aistpp_second"]["text_acc"]
         assert np.isnan(figures["text_by_list"]["aistpp_third"]["text_acc_named"])  # the third names no genre
         assert figures["genre_speed_within"] == sum(sb.within(r) for r in figures["speed_ratio"].values())
-        pairs = figures["modifier_pairs"]  # each genre's first clip, three pairs of phrasings
+        pairs = figures["modifier_pairs"]  # one clip of each genre's (here: only) held-out dance, three phrasings
         assert len(pairs) == 30 and {p["genre"] for p in pairs} == set(AISTPP_GENRES.codes)
+        assert len({p["dance"] for p in pairs}) == 10
         assert pairs[0]["slower"] == "slow break" and pairs[0]["faster"] == "fast break"
         right = np.mean([p["faster_m_s"] > p["slower_m_s"] for p in pairs])
         assert figures["modifiers_right"] == pytest.approx(right)
