@@ -1,7 +1,7 @@
 """Training throughput: samples/s, achieved TFLOP/s, model FLOPs utilisation (MFU) and peak memory.
 
     python -m dgsdp.benchmarks.training [--device cpu|cuda] [--models small paper] [--batch 32] [--steps 5]
-                                        [--compile] [--gradient-checkpointing]
+                                        [--compile] [--gradient-checkpointing] [--data data/synthetic]
 
 Runs full training steps (diffusion loss with FK and foot terms, backward, Adan step, EMA update) of the real
 LightningModule on random 5 s windows, without data loading. The update alone (Adan step and EMA update, as the
@@ -12,6 +12,11 @@ by activation checkpointing not counted, so MFU stays a model-FLOPs figure). MFU
 device's dense peak for the precision used: bf16 with ``--bf16`` (default on CUDA), TF32 for float32 matmuls at
 precision "high" (set on CUDA, as in training), from the vendors' spec sheets (:data:`PEAK_TFLOPS`). On a CPU
 there is no reliable peak figure, so MFU is printed as n/a.
+
+``--data ROOT`` (an AIST++-layout dataset, e.g. the synthetic one the quick start writes to data/synthetic) times
+the batches of a training epoch instead: the host loader's (each batch collated on the host and copied to the
+device) against windows kept on the device (``data.on_device``, :mod:`dgsdp.data.device`), after checking that the
+two give equal batches.
 """
 
 from __future__ import annotations
@@ -175,6 +180,48 @@ def sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
+def bench_data(root: str, device: torch.device, batch: int, epochs: int = 2) -> dict[str, float]:
+    """Milliseconds per training batch on ``device`` from the host loader and from windows kept on the device."""
+    from pathlib import Path
+
+    from dgsdp.audio import LibrosaEncoder
+    from dgsdp.data.datamodule import DanceDataModule, ResumableLoader
+    from dgsdp.data.device import DeviceLoader, DeviceWindows
+    from dgsdp.errors import DataError
+
+    if not (Path(root) / "motions").is_dir():
+        raise DataError(f"--data {root}: no dataset there; run the quick start (or 'python -m dgsdp.data.synthetic')")
+    dm = DanceDataModule(root, str(Path(root).parent / "cache"), audio_encoder=LibrosaEncoder(rhythm_only=True),
+                         batch_size=batch, progress=False, window_speeds=True)  # fmt: skip
+    dm.setup("fit")
+    dataset = dm.datasets["train"]
+    host = ResumableLoader(dataset, batch_size=batch, seed=0)
+    windows = DeviceWindows(dataset, device)
+    on_device = DeviceLoader(windows, batch_size=batch, seed=0)
+
+    def moved(b: dict) -> dict:
+        return {k: v.to(device, non_blocking=True) if torch.is_tensor(v) else v for k, v in b.items()}
+
+    first_host, first_device = moved(next(iter(host))), next(iter(on_device))
+    for key, value in first_host.items():
+        same = torch.equal(value, first_device[key]) if torch.is_tensor(value) else value == first_device[key]
+        if not same:
+            raise AssertionError(f"the batches differ in {key!r}")
+    times = {}
+    for name, loader, prepare in (("host", host, moved), ("device", on_device, lambda b: b)):
+        count = 0
+        sync(device)
+        start = time.perf_counter()
+        for epoch in range(epochs):
+            loader.sampler.set_epoch(epoch)
+            for b in loader:
+                prepare(b)
+                count += 1
+        sync(device)
+        times[name] = (time.perf_counter() - start) / count * 1e3
+    return {"windows": len(dataset), "batches": count, "store_mb": windows.nbytes / 1e6, **times}
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
@@ -184,6 +231,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--bf16", action=argparse.BooleanOptionalAction, default=None, help="default: on for CUDA")
     parser.add_argument("--compile", action="store_true", help="torch.compile the denoiser (as compile=true)")
     parser.add_argument("--gradient-checkpointing", action="store_true", help="recompute layer activations")
+    parser.add_argument("--data", metavar="ROOT", help="time the training batches of this dataset instead")
     args = parser.parse_args(argv)
     device = torch.device(args.device)
     if device.type == "cuda":
@@ -191,6 +239,13 @@ def main(argv: list[str] | None = None) -> None:
     bf16 = device.type == "cuda" if args.bf16 is None else args.bf16
     batch = args.batch or (128 if device.type == "cuda" else 32)
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else f"CPU ({torch.get_num_threads()} threads)"
+    if args.data:
+        r = bench_data(args.data, device, batch)
+        print(f"device: {name}; {r['windows']} training windows of {args.data}, batch {batch}, {r['batches']} batches "
+              f"(2 epochs); the windows take {r['store_mb']:.1f} MB on the device")  # fmt: skip
+        print(f"ms per batch: host loader (collate + copy) {r['host']:.2f}, on the device {r['device']:.2f}, "
+              f"ratio {r['host'] / r['device']:.1f}x (equal batches checked)")  # fmt: skip
+        return
     print(
         f"device: {name}; batch {batch}; bf16 autocast: {bf16}; compile: {args.compile}; "
         f"gradient checkpointing: {args.gradient_checkpointing}; {args.steps} timed steps"

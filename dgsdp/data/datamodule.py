@@ -440,7 +440,10 @@ class DanceDataModule(L.LightningDataModule):
     """Windows of AIST++-layout data for training (stride 0.5 s) and validation/testing (stride 2.5 s).
 
     ``num_workers`` loader processes (kept alive across epochs with ``persistent_workers``) and ``pin_memory``
-    (page-locked batches, for asynchronous copies to a GPU) are the data-loading speed settings.
+    (page-locked batches, for asynchronous copies to a GPU) are the data-loading speed settings of the host loader.
+    ``on_device`` (auto, true, false) keeps the windows on the training device instead and cuts each batch there
+    (:mod:`dgsdp.data.device`; the same batches to the last bit): auto does so on a GPU when the sequences take at
+    most 2 GiB and need no host processing per window (no tempo augmentation, no raw waveforms).
     ``audio_encoder`` None with ``waveform_sample_rate`` set yields raw waveform windows; both None yields motion
     only. If ``root`` has no dataset and ``synthetic`` is set, the synthetic dataset is generated there first, but
     only when asked: ``root`` is the synthetic dataset's own folder (``synthetic_root``) or ``generate_synthetic``
@@ -481,8 +484,13 @@ class DanceDataModule(L.LightningDataModule):
         skeleton: str = "smpl24",
         smplx_file: str | None = None,
         window_speeds: bool = False,
+        on_device: str | bool = "auto",
     ) -> None:
         super().__init__()
+        from dgsdp.data.device import check_on_device
+
+        self.on_device = check_on_device(on_device)
+        self._device_windows: dict[str, Any] = {}  # DeviceWindows by split name, built by the first loader
         self.skeleton = skeleton_from_config(skeleton, smplx_file, option="data.smplx_file")
         # each window's mean joint speed in its batch, for a model conditioned on it (train.py sets this when
         # model.speed_conditioning is on); the training windows' speeds per genre are measured in setup()
@@ -632,8 +640,40 @@ class DanceDataModule(L.LightningDataModule):
             if name == "train" and self.window_speeds and self.speed_quantiles is None:
                 self.speed_quantiles, self.speed_reference = speed_quantiles(ds, len(self.vocab))
 
-    def _loader(self, name: str, shuffle: bool) -> DataLoader:
+    def _windows_device(self, name: str) -> torch.device | None:
+        """The device whose memory holds split ``name``'s windows (``on_device``), or None for the host loader."""
+        from dgsdp.data.device import AUTO_LIMIT_BYTES, host_only_reason
+
+        if self.on_device == "false":
+            return None
+        device = torch.device("cpu") if self.trainer is None else self.trainer.strategy.root_device
+        if self.on_device == "true":
+            return device
         dataset = self.datasets[name]
+        if device.type != "cuda" or host_only_reason(dataset) is not None:
+            return None
+        used = {i for i, _ in dataset.index}
+        frames = sum(len(dataset.sequences[i].motion) for i in used)
+        width = self.skeleton.pose_dim + self.audio_dim
+        if frames * width * 4 > AUTO_LIMIT_BYTES:
+            log.info("split %r: %.1f GiB of windows is too much to keep on %s; loading on the host",
+                     self.splits[name], frames * width * 4 / 1024**3, device)  # fmt: skip
+            return None
+        return device
+
+    def _loader(self, name: str, shuffle: bool) -> DataLoader | Any:
+        dataset = self.datasets[name]
+        device = self._windows_device(name)
+        if device is not None:
+            from dgsdp.data.device import DeviceLoader, DeviceWindows
+
+            windows = self._device_windows.get(name)
+            if windows is None or windows.device != device:
+                windows = self._device_windows[name] = DeviceWindows(dataset, device)
+                log.info("split %r: %d windows kept on %s (%.1f MB)",
+                         self.splits[name], len(windows), device, windows.nbytes / 1e6)  # fmt: skip
+            seed = self.shuffle_seed if shuffle else None
+            return DeviceLoader(windows, batch_size=self.batch_size, seed=seed)
         kwargs = {
             "num_workers": self.num_workers,
             "persistent_workers": self.persistent_workers and self.num_workers > 0,
