@@ -206,7 +206,9 @@ def bench_data(root: str, device: torch.device, batch: int, epochs: int = 2) -> 
     for key, value in first_host.items():
         same = torch.equal(value, first_device[key]) if torch.is_tensor(value) else value == first_device[key]
         if not same:
-            raise AssertionError(f"the batches differ in {key!r}")
+            raise RuntimeError(
+                f"the host loader and the device store give different batches ({key!r}): a bug; please report it"
+            )
     times = {}
     for name, loader, prepare in (("host", host, moved), ("device", on_device, lambda b: b)):
         count = 0
