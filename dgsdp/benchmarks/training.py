@@ -185,7 +185,7 @@ def bench_data(root: str, device: torch.device, batch: int, epochs: int = 2) -> 
     from pathlib import Path
 
     from dgsdp.audio import LibrosaEncoder
-    from dgsdp.data.datamodule import DanceDataModule, ResumableLoader
+    from dgsdp.data.datamodule import DanceDataModule, EpochShuffleSampler, ResumableLoader
     from dgsdp.data.device import DeviceLoader, DeviceWindows
     from dgsdp.errors import DataError
 
@@ -197,7 +197,7 @@ def bench_data(root: str, device: torch.device, batch: int, epochs: int = 2) -> 
     dataset = dm.datasets["train"]
     host = ResumableLoader(dataset, batch_size=batch, seed=0)
     windows = DeviceWindows(dataset, device)
-    on_device = DeviceLoader(windows, batch_size=batch, seed=0)
+    on_device = DeviceLoader(windows, batch_size=batch, sampler=EpochShuffleSampler(len(windows), 0))
 
     def moved(b: dict) -> dict:
         return {k: v.to(device, non_blocking=True) if torch.is_tensor(v) else v for k, v in b.items()}

@@ -26,6 +26,7 @@ from tqdm.auto import tqdm
 from dgsdp.audio import AudioEncoder, FeatureCache, load_audio
 from dgsdp.audio.tempo import training_tempo_range
 from dgsdp.data.aistpp import check_root, load_motion_pkl, music_path, parse_name, process_motion, read_split
+from dgsdp.data.device import AUTO_LIMIT_BYTES, DeviceLoader, DeviceWindows, check_on_device, host_only_reason
 from dgsdp.errors import ConfigError, DataError, DgsdpError
 from dgsdp.metrics.speed import SPEED_QUANTILES, frame_speeds
 from dgsdp.motion import MinMaxNormalizer, Skeleton, measure_floor_height, skeleton_from_config
@@ -487,8 +488,6 @@ class DanceDataModule(L.LightningDataModule):
         on_device: str | bool = "auto",
     ) -> None:
         super().__init__()
-        from dgsdp.data.device import check_on_device
-
         self.on_device = check_on_device(on_device)
         self._device_windows: dict[str, Any] = {}  # DeviceWindows by split name, built by the first loader
         self.skeleton = skeleton_from_config(skeleton, smplx_file, option="data.smplx_file")
@@ -642,8 +641,6 @@ class DanceDataModule(L.LightningDataModule):
 
     def _windows_device(self, name: str) -> torch.device | None:
         """The device whose memory holds split ``name``'s windows (``on_device``), or None for the host loader."""
-        from dgsdp.data.device import AUTO_LIMIT_BYTES, host_only_reason
-
         if self.on_device == "false":
             return None
         device = torch.device("cpu") if self.trainer is None else self.trainer.strategy.root_device
@@ -661,19 +658,17 @@ class DanceDataModule(L.LightningDataModule):
             return None
         return device
 
-    def _loader(self, name: str, shuffle: bool) -> DataLoader | Any:
+    def _loader(self, name: str, shuffle: bool) -> DataLoader | DeviceLoader:
         dataset = self.datasets[name]
         device = self._windows_device(name)
         if device is not None:
-            from dgsdp.data.device import DeviceLoader, DeviceWindows
-
             windows = self._device_windows.get(name)
             if windows is None or windows.device != device:
                 windows = self._device_windows[name] = DeviceWindows(dataset, device)
                 log.info("split %r: %d windows kept on %s (%.1f MB)",
                          self.splits[name], len(windows), device, windows.nbytes / 1e6)  # fmt: skip
-            seed = self.shuffle_seed if shuffle else None
-            return DeviceLoader(windows, batch_size=self.batch_size, seed=seed)
+            sampler = EpochShuffleSampler(len(windows), self.shuffle_seed) if shuffle else None
+            return DeviceLoader(windows, batch_size=self.batch_size, sampler=sampler)
         kwargs = {
             "num_workers": self.num_workers,
             "persistent_workers": self.persistent_workers and self.num_workers > 0,

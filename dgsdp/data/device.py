@@ -15,16 +15,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import Sampler, SequentialSampler
+from torch.utils.data import Dataset, Sampler, SequentialSampler
 
 from dgsdp.errors import ConfigError, DataError
-
-if TYPE_CHECKING:
-    from dgsdp.data.datamodule import WindowDataset
 
 ON_DEVICE_CHOICES = ("auto", "true", "false")
 # data.on_device=auto keeps the windows on a GPU when their sequences take at most this much of its memory
@@ -41,8 +38,9 @@ def check_on_device(value: Any) -> str:
     return text
 
 
-def host_only_reason(dataset: WindowDataset) -> str | None:
-    """Why ``dataset``'s windows can only be made on the host, or None when they can be cut on the device."""
+def host_only_reason(dataset: Dataset) -> str | None:
+    """Why the windows of ``dataset`` (a :class:`~dgsdp.data.datamodule.WindowDataset`) can only be made on the host,
+    or None when they can be cut on the device."""
     if dataset.tempo_range is not None:
         return "windows played at a random tempo (data.tempo_augment) are resampled on the host"
     if dataset.waveform_sample_rate is not None:
@@ -68,7 +66,7 @@ class DeviceWindows:
     frames); a window is then its first frame's row in that store, and :meth:`batch` gathers ``(B, length)`` rows.
     """
 
-    def __init__(self, dataset: WindowDataset, device: torch.device | str) -> None:
+    def __init__(self, dataset: Dataset, device: torch.device | str) -> None:
         reason = host_only_reason(dataset)
         if reason is not None:
             raise ConfigError(f"data.on_device=true: {reason}; set data.on_device=auto or false")
@@ -134,29 +132,16 @@ class DeviceWindows:
 
 class DeviceLoader:
     """Batches of :class:`DeviceWindows`, served as :class:`~dgsdp.data.datamodule.ResumableLoader` serves the host
-    windows: shuffled by an :class:`~dgsdp.data.datamodule.EpochShuffleSampler` (``seed`` given) or in order
-    (``seed`` None), full batches only when a rank's share holds more than one, and the number of batches served this
-    epoch as the state a resumed run skips."""
+    windows: in the order of ``sampler`` (the datamodule's :class:`~dgsdp.data.datamodule.EpochShuffleSampler`,
+    which also shards the windows across ranks) with full batches only when a rank's share holds more than one, and
+    the number of batches served this epoch as the state a resumed run skips; with ``sampler`` None, every window in
+    order (validation and testing)."""
 
-    def __init__(
-        self,
-        windows: DeviceWindows,
-        *,
-        batch_size: int,
-        seed: int | None,
-        rank: int | None = None,
-        world_size: int | None = None,
-    ) -> None:
-        from dgsdp.data.datamodule import EpochShuffleSampler
-
+    def __init__(self, windows: DeviceWindows, *, batch_size: int, sampler: Sampler[int] | None = None) -> None:
         self.windows = windows
         self.batch_size = batch_size
-        self.shuffled = seed is not None
-        self.sampler: Sampler[int] = (
-            EpochShuffleSampler(len(windows), seed, rank=rank, world_size=world_size)
-            if self.shuffled
-            else SequentialSampler(range(len(windows)))
-        )
+        self.shuffled = sampler is not None
+        self.sampler: Sampler[int] = sampler if sampler is not None else SequentialSampler(range(len(windows)))
         self.batch_sampler = None  # read by Lightning, as a DataLoader's
         self.drop_last = self.shuffled and len(self.sampler) > batch_size
         self.served = 0

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from dgsdp.audio import LibrosaEncoder
-from dgsdp.data.datamodule import DanceDataModule, ResumableLoader
+from dgsdp.data.datamodule import DanceDataModule, EpochShuffleSampler, ResumableLoader
 from dgsdp.data.device import DeviceLoader, DeviceWindows
 from dgsdp.data.synthetic import generate_synthetic_aistpp
 from dgsdp.errors import ConfigError
@@ -37,7 +37,7 @@ def assert_same_batch(host: dict, device: dict) -> None:
 def test_batches_equal_the_host_loaders_over_epochs(datamodule):
     dataset = datamodule.datasets["train"]
     host = ResumableLoader(dataset, batch_size=4, seed=7)
-    device = DeviceLoader(DeviceWindows(dataset, "cpu"), batch_size=4, seed=7)
+    device = DeviceLoader(DeviceWindows(dataset, "cpu"), batch_size=4, sampler=EpochShuffleSampler(len(dataset), 7))
     assert len(host) == len(device) == len(dataset) // 4
     for epoch in range(2):
         host.sampler.set_epoch(epoch)
@@ -50,7 +50,7 @@ def test_batches_equal_the_host_loaders_over_epochs(datamodule):
     # validation: in order, the last batch partial
     val = datamodule.datasets["val"]
     host_val = list(torch.utils.data.DataLoader(val, batch_size=4, shuffle=False))
-    device_val = list(DeviceLoader(DeviceWindows(val, "cpu"), batch_size=4, seed=None))
+    device_val = list(DeviceLoader(DeviceWindows(val, "cpu"), batch_size=4))
     assert len(host_val) == len(device_val)
     for a, b in zip(host_val, device_val, strict=True):
         assert_same_batch(a, b)
@@ -76,7 +76,9 @@ def test_shards_and_resume_follow_the_host_loader(datamodule):
     windows = DeviceWindows(dataset, "cpu")
     for rank in range(2):
         host = ResumableLoader(dataset, batch_size=3, seed=1, rank=rank, world_size=2)
-        device = DeviceLoader(windows, batch_size=3, seed=1, rank=rank, world_size=2)
+        device = DeviceLoader(
+            windows, batch_size=3, sampler=EpochShuffleSampler(len(windows), 1, rank=rank, world_size=2)
+        )
         served = []
         for i, batch in enumerate(device):
             served.append(batch["name"])
@@ -84,7 +86,9 @@ def test_shards_and_resume_follow_the_host_loader(datamodule):
                 state = device.state_dict()
                 break
         assert state == {"served": 3}
-        resumed = DeviceLoader(windows, batch_size=3, seed=1, rank=rank, world_size=2)
+        resumed = DeviceLoader(
+            windows, batch_size=3, sampler=EpochShuffleSampler(len(windows), 1, rank=rank, world_size=2)
+        )
         resumed.load_state_dict(state)
         rest = [b["name"] for b in resumed]
         assert served + rest == [b["name"] for b in host]
