@@ -41,7 +41,7 @@ from torch import nn
 
 from dgsdp.audio.base import AudioEncoder, fit_frames, resample_frames
 from dgsdp.errors import CheckpointError, ConfigError, WeightsError
-from dgsdp.utils.checkpoint_file import load_checkpoint
+from dgsdp.safety.checkpoint_file import load_checkpoint
 from dgsdp.utils.device import resolve_device
 
 JUKEBOX_SAMPLE_RATE = 44100
@@ -117,7 +117,7 @@ def _load_checkpoint_state(path: Path) -> dict[str, torch.Tensor]:
 
     OpenAI's files hold ``{"hps": dict, "model": state dict, "opt": ..., "step": int}`` in torch's pre-zip format,
     which ``weights_only=True`` reads (jukebox-infer itself loads them that way); memory mapping needs the zip format
-    and is used when the file has it. The file is scanned first (:mod:`dgsdp.utils.checkpoint_file`); nothing else is
+    and is used when the file has it. The file is scanned first (:mod:`dgsdp.safety.checkpoint_file`); nothing else is
     tried: a file that needs arbitrary objects is refused.
     """
     try:

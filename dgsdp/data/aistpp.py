@@ -20,7 +20,7 @@ from dgsdp.audio.tempo import tempo_from_music_id
 from dgsdp.errors import DataError
 from dgsdp.motion import smpl_to_pose
 from dgsdp.resources import AISTPP_SPLITS_DIR as SHIPPED_SPLITS_DIR
-from dgsdp.utils.safe_pickle import load_pickle
+from dgsdp.safety.safe_pickle import load_pickle
 
 SOURCE_FPS = 60
 NAME_PATTERN = re.compile(

@@ -17,7 +17,7 @@ import torch
 from dgsdp.data.aistpp import load_motion_pkl, process_motion
 from dgsdp.errors import DataError
 from dgsdp.motion import SMPL24, Skeleton
-from dgsdp.utils.safe_pickle import load_pickle
+from dgsdp.safety.safe_pickle import load_pickle
 
 MOTION_FILE_SUFFIXES = (".npy", ".pkl")
 AISTPP_SOURCE_FPS = 60

@@ -4,7 +4,7 @@ normaliser, the floor height and the style bank, loaded from a checkpoint and ch
 Everything the model needs at generation time is in its state dict as plain tensors (normaliser statistics,
 style bank) and in its :class:`~dgsdp.trained.spec.RunSpec`, stored as plain data in ``hyper_parameters``.
 Checkpoints therefore load with weights only, after a bounded scan of the file
-(:func:`dgsdp.utils.checkpoint_file.load_checkpoint`), without this package's classes, and their configs are data:
+(:func:`dgsdp.safety.checkpoint_file.load_checkpoint`), without this package's classes, and their configs are data:
 parts are built only from the project's registered classes (:mod:`dgsdp.registry`), and only once their sizes
 match the stored weights (:func:`check_weights`).
 Training (:class:`dgsdp.training.module.DanceDiffusion`, a LightningModule) builds on this class; nothing here
@@ -27,10 +27,10 @@ from dgsdp.errors import CheckpointError, ConfigError
 from dgsdp.metrics.speed import SPEED_QUANTILES
 from dgsdp.motion import MinMaxNormalizer, Skeleton
 from dgsdp.registry import Source
+from dgsdp.safety.checkpoint_file import load_checkpoint, reading
 from dgsdp.sampling import Sampler
 from dgsdp.style.embeddings import StyleBank
 from dgsdp.trained.spec import RunSpec
-from dgsdp.utils.checkpoint_file import load_checkpoint, reading
 
 CHECKPOINT_FORMAT = 2
 MAX_FLOOR_M = 10.0  # a stored floor height further from z = 0 is refused as damaged data

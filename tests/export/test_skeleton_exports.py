@@ -20,8 +20,8 @@ from dgsdp.errors import DataError  # noqa: E402
 from dgsdp.export import render_frame  # noqa: E402
 from dgsdp.generation import write_motion  # noqa: E402
 from dgsdp.motion import forward_kinematics, points_z_up_to_y_up, smplx_skeleton, unpack_pose  # noqa: E402
+from dgsdp.safety.safe_pickle import load_pickle  # noqa: E402
 from dgsdp.studio.viewer import write_joints_json  # noqa: E402
-from dgsdp.utils.safe_pickle import load_pickle  # noqa: E402
 
 FLOOR = 0.05
 

@@ -25,7 +25,7 @@ from conftest import TALLY, refused
 from hostile_checkpoints import EDGE_ONLY, HEAVY, HOSTILE
 
 from dgsdp.errors import CheckpointError, DgsdpError
-from dgsdp.utils.checkpoint_file import LIMITS, ScanLimits, load_checkpoint, scan_checkpoint
+from dgsdp.safety.checkpoint_file import LIMITS, ScanLimits, load_checkpoint, scan_checkpoint
 
 REPO = Path(__file__).resolve().parents[2]
 SECONDS = 10.0  # the most CPU time a refusal may take (the wall time of a busy shared machine is several times that)
@@ -279,9 +279,9 @@ def test_one_torch_load_in_the_package():
         for i, line in enumerate(py.read_text().splitlines(), 1)
         if re.search(r"torch\.load\(\s*[^w)]", line) or re.search(r"\bfrom torch import .*\bload\b", line)
     ]
-    assert calls == ["dgsdp/utils/checkpoint_file.py:" + str(_load_line())], calls
+    assert calls == ["dgsdp/safety/checkpoint_file.py:" + str(_load_line())], calls
 
 
 def _load_line() -> int:
-    source = (REPO / "dgsdp" / "utils" / "checkpoint_file.py").read_text().splitlines()
+    source = (REPO / "dgsdp" / "safety" / "checkpoint_file.py").read_text().splitlines()
     return next(i for i, line in enumerate(source, 1) if "return torch.load(p, " in line)

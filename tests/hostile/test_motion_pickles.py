@@ -17,7 +17,7 @@ from conftest import accepted, refused, shell_touch
 from dgsdp.data.aistpp import load_motion_pkl
 from dgsdp.editing import load_motion_file
 from dgsdp.errors import DataError
-from dgsdp.utils.safe_pickle import UnsafePickleError, load_pickle
+from dgsdp.safety.safe_pickle import UnsafePickleError, load_pickle
 
 
 def aistpp_dict(n: int = 120, dtype=np.float64) -> dict:
@@ -50,13 +50,19 @@ def test_plain_values_round_trip_exactly(tmp_path, protocol):
         "ints": np.arange(5, dtype=np.int16), "bools": np.array([True, False]), "big_endian": np.ones(3, ">f8"),
         "fortran": np.asfortranarray(np.arange(6.0).reshape(2, 3)), "scalar": np.float32(2.5), "int": 3,
         "float": 1.5, "none": None, "text": "gBR", "bytes": b"\x00\x01", "nested": [(1, 2), {"a": [np.int64(4)]}],
-        "set": {1, 2}, "complex": 1 + 2j, "structured": np.zeros(2, dtype=[("a", "f4"), ("b", "i2")]),
+        "set": {1, 2}, "complex": 1 + 2j, "c64": np.ones(2, np.complex64), "u8": np.arange(3, dtype=np.uint64),
+        "empty": np.zeros((0, 72), np.float32), "shared": [np.ones(2)] * 2,
     }  # fmt: skip
     path = tmp_path / "values.pkl"
     path.write_bytes(pickle.dumps(value, protocol=protocol))
     got, expected = load_pickle(path), pickle.loads(path.read_bytes())
     assert repr(got) == repr(expected)
     assert all(type(got[k]) is type(expected[k]) for k in expected)
+    assert got["shared"][0] is got["shared"][1]  # one array stored once stays one array
+    arrays = [v for v in got.values() if isinstance(v, np.ndarray)]
+    for arr in arrays:  # built from the file's bytes as fresh arrays of their own, as numpy's unpickler gives them
+        assert arr.flags.writeable and arr.flags.owndata
+    assert got["fortran"].flags.f_contiguous and got["big_endian"].dtype == expected["big_endian"].dtype
     accepted()
 
 
@@ -155,8 +161,8 @@ BROKEN = {
     "trans (N, 2)": (dict(smpl_trans=np.zeros((10, 2))), "(N, 3)"),
     "poses 1-d": (dict(smpl_poses=np.zeros(72)), "(N, 72)"),
     "zero frames": (dict(smpl_poses=np.zeros((0, 72)), smpl_trans=np.zeros((0, 3))), "(N, 72)"),
-    "string poses": (dict(smpl_poses=np.array([["a"] * 72] * 10)), "numeric"),
-    "object poses": (dict(smpl_poses=np.array([None] * 10, dtype=object)), "(N, 72)"),
+    "string poses": (dict(smpl_poses=np.array([["a"] * 72] * 10)), "only plain numeric arrays"),
+    "object poses": (dict(smpl_poses=np.array([None] * 10, dtype=object)), "dtype 'O8'"),
     "nan poses": (dict(smpl_poses=np.full((10, 72), np.nan)), "non-finite"),
     "zero scaling": (dict(smpl_scaling=np.zeros(1)), "smpl_scaling"),
     "text scaling": (dict(smpl_scaling="big"), "numeric"),
@@ -246,7 +252,14 @@ HOSTILE_MOTIONS = {
     # numpy reads memory past its data
     "object array, shape 3 over 2 items": (lambda: _object_array(3, 2), "from 2 items"),
     "object array, shape 2^30 over 2 items": (lambda: _object_array(2**30, 2), "more than the file's"),
-    "structured field past its items": (lambda: _field_outside(100_000), "outside its 8-byte items"),
+    "structured field past its items": (lambda: _field_outside(100_000), "dtype 'V8'"),
+    "structured array": (lambda: pickle.dumps(np.zeros(2, dtype=[("a", "f4"), ("b", "i2")]), protocol=2), "'V6'"),
+    "text array": (lambda: pickle.dumps(np.array(["gBR"]), protocol=4), "dtype 'U3'"),
+    "datetime array": (lambda: pickle.dumps(np.zeros(2, "M8[s]"), protocol=4), "dtype 'M8'"),
+    "bytes shorter than the shape": (
+        lambda: pickle.dumps(np.zeros(4)).replace(made.b_int(4), made.b_int(5)),
+        "from 32 bytes",
+    ),
     # sizes and instructions
     "bytearray(2^40)": (
         lambda: made.pickled(made.b_global("builtins", "bytearray") + made.b_tuple(made.b_int(2**40)) + pickle.REDUCE),
@@ -265,6 +278,119 @@ MOTION_READERS = {
     "AIST++ reader": load_motion_pkl,
     "seed_motion_file / motion_file": load_motion_file,
 }
+
+
+# --- arrays numpy's own unpickling would build unchecked (crashes, writes outside the array, 5-40 GB) -----------
+def _np_dtype(code: str, *state: bytes) -> bytes:
+    """``numpy.dtype(code, False, True)`` with the ``BUILD`` state ``state`` (numpy's own pickle of a dtype)."""
+    return (made.b_global("numpy", "dtype") + made.b_tuple(made.b_str(code), pickle.NEWFALSE, pickle.NEWTRUE)
+            + pickle.REDUCE + made.b_tuple(*state) + pickle.BUILD)  # fmt: skip
+
+
+_NONE_3 = (pickle.NONE,) * 3
+OBJECT_DTYPE = _np_dtype("O8", made.b_int(3), made.b_str("|"), *_NONE_3, made.b_int(-1), made.b_int(-1), made.b_int(63))
+F8_DTYPE = _np_dtype("f8", made.b_int(3), made.b_str("<"), *_NONE_3, made.b_int(-1), made.b_int(-1), made.b_int(0))
+
+
+def _object_field_dtype(offset: int) -> bytes:
+    """An 8-byte structured dtype whose one object field lies at ``offset`` (numpy writes a pointer there)."""
+    fields = pickle.EMPTY_DICT + made.b_str("a") + made.b_tuple(OBJECT_DTYPE, made.b_int(offset)) + pickle.SETITEM
+    state = (made.b_int(3), made.b_str("|"), pickle.NONE, made.b_tuple(made.b_str("a")), fields, made.b_int(8),
+             made.b_int(1), made.b_int(27))  # fmt: skip
+    return _np_dtype("V8", *state)
+
+
+def _reconstruct(typecode: bytes = pickle.SHORT_BINBYTES + b"\x01b", shape: int = 0) -> bytes:
+    ndarray = made.b_global("numpy", "ndarray")
+    args = made.b_tuple(ndarray, made.b_tuple(made.b_int(shape)), typecode)
+    return made.b_global("numpy._core.multiarray", "_reconstruct") + args + pickle.REDUCE
+
+
+def _ndarray_call(shape: int, dtype: bytes) -> bytes:
+    return made.b_global("numpy", "ndarray") + made.b_tuple(made.b_tuple(made.b_int(shape)), dtype) + pickle.REDUCE
+
+
+def _array_state(items: int, dtype: bytes, data: bytes) -> bytes:
+    """numpy's array state ``(1, (items,), dtype, False, data)`` and its BUILD."""
+    return made.b_tuple(made.b_int(1), made.b_tuple(made.b_int(items)), dtype, pickle.NEWFALSE, data) + pickle.BUILD
+
+
+_ONE_NONE = pickle.EMPTY_LIST + pickle.NONE + pickle.APPEND
+_FROMBUFFER = (made.b_global("numpy._core.numeric", "_frombuffer")
+               + made.b_tuple(pickle.SHORT_BINBYTES + b"\x08" + bytes(8), F8_DTYPE, made.b_tuple(made.b_int(1)),
+                              made.b_str("C")) + pickle.REDUCE)  # fmt: skip
+NUMPY_CRASHERS = {
+    # the review's files, each under 300 bytes: numpy reads past a one-item list (exit 139)
+    "object array on numpy.ndarray": (
+        _ndarray_call(0, F8_DTYPE) + _array_state(200_000, OBJECT_DTYPE, _ONE_NONE), "calling numpy.ndarray"),
+    "object array on _frombuffer": (
+        _FROMBUFFER + _array_state(200_000, OBJECT_DTYPE, _ONE_NONE), "built from a buffer"),
+    # numpy writes a pointer outside the array's 8-byte items while the pickle loads (exit 139)
+    **{f"object field at offset {n} on _reconstruct": (
+        _reconstruct() + _array_state(1, _object_field_dtype(n), pickle.EMPTY_LIST + made.b_tuple(pickle.NONE)
+                                      + pickle.APPEND), "dtype 'V8'") for n in (16, 64, 4096, 2**30)},
+    **{f"object field at offset {n} on numpy.ndarray": (_ndarray_call(1, _object_field_dtype(n)), "numpy.ndarray")
+       for n in (16, 4096)},
+    # a plain code whose state gives it a size of its own
+    "f8 dtype stating 4096-byte items": (
+        _reconstruct() + _array_state(1, _np_dtype("f8", made.b_int(3), made.b_str("<"), *_NONE_3,
+                                                   made.b_int(4096), made.b_int(-1), made.b_int(0)),
+                                      pickle.SHORT_BINBYTES + b"\x08" + bytes(8)), "a size or flags of its own"),
+    # a dtype string that hides its size: 3e8 objects (5.4 GB), or 40 GB of void
+    "dtype string hiding 3e8 objects": (_reconstruct(made.b_str("(150000000,)O"), 2), "numpy never writes"),
+    "void dtype of 40 GB": (_ndarray_call(1, made.b_str("V40000000000")), "numpy.ndarray"),
+}  # fmt: skip
+"""name -> (the pickle's body, a fragment of its refusal)."""
+_CHILD = """
+import json, resource, sys
+from dgsdp.editing import load_motion_file
+from dgsdp.safety.safe_pickle import load_pickle
+from dgsdp.errors import DataError
+with open("/proc/self/statm") as f:
+    mapped = int(f.read().split()[0]) * resource.getpagesize()
+resource.setrlimit(resource.RLIMIT_AS, (mapped + 2**30, resource.RLIM_INFINITY))  # 1 GiB more than now
+for path in sys.argv[1:]:
+    for reader in (load_pickle, load_motion_file):
+        try:
+            reader(path)
+            result = "loaded"
+        except DataError as e:
+            result = "DataError: " + str(e)
+        except BaseException as e:
+            result = type(e).__name__ + ": " + str(e)
+        print(json.dumps([path, result]), flush=True)
+"""
+
+
+def test_numpy_crashers_are_refused_before_numpy_builds_anything(tmp_path):
+    """The review's files: object arrays built on numpy.ndarray or _frombuffer, object fields outside their items,
+    dtype strings hiding their size. Read by two readers in a fresh interpreter limited to 1 GiB more memory than it
+    has after its imports (a crash kills only it; a 5 GB or 40 GB allocation fails there as MemoryError): each file
+    is one DataError from each reader, naming the file, the interpreter exits 0."""
+    import json
+    import sys
+    from pathlib import Path
+
+    files = {}
+    for i, (case, (body, _)) in enumerate(NUMPY_CRASHERS.items()):
+        files[case] = tmp_path / f"m{i}.pkl"
+        files[case].write_bytes(made.pickled(body))
+        assert files[case].stat().st_size < 300, case
+    repo = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": str(repo), "HF_HUB_OFFLINE": "1"}
+    proc = subprocess.run([sys.executable, "-c", _CHILD, *map(str, files.values())], env=env, capture_output=True,
+                          text=True, timeout=300)  # fmt: skip
+    results: dict[str, list[str]] = {}
+    for line in proc.stdout.splitlines():
+        path, result = json.loads(line)
+        results.setdefault(path, []).append(result)
+    for case, path in files.items():
+        got = results.get(str(path))
+        assert got is not None, f"{case}: the interpreter died before reading it (rc {proc.returncode})"
+        for result in got:
+            assert result.startswith("DataError: ") and str(path) in result, f"{case}: {result[:500]}"
+            assert NUMPY_CRASHERS[case][1].lower() in result.lower(), f"{case}: {result[:500]}"
+    assert proc.returncode == 0, proc.stderr[-2000:]
 
 
 @pytest.mark.timeout(60)
@@ -286,7 +412,7 @@ def test_hostile_motion_pickles_are_refused_quickly(tmp_path, case, reader):
 def test_scan_limits_of_motion_pickles(tmp_path):
     """Real motion files pass far below the limits: an AIST++ motion of 20 s with numpy arrays, and a 60 s motion
     written as lists of numbers; the limits decide (a tighter limit refuses the same file, naming it)."""
-    from dgsdp.utils.pickle_scan import DATA_LIMITS, ScanLimits, ScanReport, scan_stream
+    from dgsdp.safety.pickle_scan import DATA_LIMITS, ScanLimits, ScanReport, scan_stream
 
     arrays = tmp_path / "arrays.pkl"
     arrays.write_bytes(pickle.dumps(aistpp_dict(n=1200), protocol=4))

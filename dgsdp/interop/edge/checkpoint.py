@@ -19,7 +19,7 @@ from typing import Any
 import torch
 
 from dgsdp.errors import CheckpointError
-from dgsdp.utils.checkpoint_file import load_checkpoint, reading
+from dgsdp.safety.checkpoint_file import load_checkpoint, reading
 
 NORMALIZER_CLASS = ("dataset.preprocess", "Normalizer")
 SCALER_CLASS = ("dataset.scaler", "MinMaxScaler")
@@ -67,7 +67,7 @@ def _stand_in(module: str, name: str) -> type:
 def read_edge_checkpoint(path: str | Path) -> EdgeCheckpoint:
     """EDGE's checkpoint as tensors and numbers, or one CheckpointError saying what is wrong (an
     :class:`UnsafeCheckpointError` naming the refused global for a file that would run code). The file is scanned
-    before it is read (:mod:`dgsdp.utils.checkpoint_file`), and every check of what it holds runs inside the error
+    before it is read (:mod:`dgsdp.safety.checkpoint_file`), and every check of what it holds runs inside the error
     boundary."""
     p = Path(path).expanduser()
     normalizer_cls, scaler_cls = _stand_in(*NORMALIZER_CLASS), _stand_in(*SCALER_CLASS)

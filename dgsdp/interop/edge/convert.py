@@ -21,7 +21,7 @@ import torch
 from dgsdp.errors import CheckpointError
 from dgsdp.interop.edge.checkpoint import EdgeCheckpoint, EdgeScaler, read_edge_checkpoint
 from dgsdp.interop.edge.weights import EDGE_HEADS, EdgeArchitecture, edge_architecture, to_dgsdp
-from dgsdp.utils.checkpoint_file import reading
+from dgsdp.safety.checkpoint_file import reading
 from dgsdp.utils.io import atomic_path
 
 log = logging.getLogger(__name__)

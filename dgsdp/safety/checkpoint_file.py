@@ -4,7 +4,7 @@
 dict key nested a million tuples deep crashes the interpreter when it is hashed, a shared ``(x, x)`` fetched 64
 levels deep through the pickle's memo hashes 2^64 times, a 2 KB file can declare petabytes of tensor storage or a
 stride-0 view of 2^50 elements. :func:`scan_checkpoint` walks the pickle's instructions first
-(:mod:`dgsdp.utils.pickle_scan`, the scan motion pickles go through too) and refuses a file whose nesting, unfolded
+(:mod:`dgsdp.safety.pickle_scan`, the scan motion pickles go through too) and refuses a file whose nesting, unfolded
 size, instruction count, declared storage or tensor views exceed :data:`LIMITS`, or whose zip entries unpack to far
 more than the file. :func:`load_checkpoint` is the one way this package opens a checkpoint file (project
 checkpoints, EDGE's, Jukebox weights): scan, then ``torch.load`` with weights only, every failure as one
@@ -27,7 +27,7 @@ from typing import Any
 import torch
 
 from dgsdp.errors import CheckpointError, UnsafeCheckpointError
-from dgsdp.utils.pickle_scan import LIMITS, PickleScan, ScanLimits, ScanRefused, ScanReport
+from dgsdp.safety.pickle_scan import LIMITS, PickleScan, ScanLimits, ScanRefused, ScanReport
 
 ZIP_MAGIC = b"PK\x03\x04"  # torch.load takes a file for a zip archive when it starts with a local file header
 

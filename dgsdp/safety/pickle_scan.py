@@ -8,9 +8,9 @@ list). :class:`PickleScan` walks the instructions (:func:`pickletools.genops`, w
 light record of what each would make, and raises :class:`ScanRefused` when the nesting, unfolded size, instruction
 count, declared sizes or views exceed its :class:`ScanLimits`.
 
-One machine, two kinds of file: ``"torch"`` (checkpoints, read by :mod:`dgsdp.utils.checkpoint_file`: the
+One machine, two kinds of file: ``"torch"`` (checkpoints, read by :mod:`dgsdp.safety.checkpoint_file`: the
 instructions torch's weights-only unpickler executes, tensor storages and views) and ``"data"`` (motion pickles,
-read by :mod:`dgsdp.utils.safe_pickle`: every instruction of plain data of protocols 0-5, numpy's array rebuilds).
+read by :mod:`dgsdp.safety.safe_pickle`: every instruction of plain data of protocols 0-5, numpy's array rebuilds).
 docs/security.md explains the limits.
 """
 
