@@ -16,9 +16,9 @@ import warnings
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
-import librosa
 import numpy as np
 
+from dgsdp.audio.numba_cache import librosa
 from dgsdp.audio.tempo import tempo_from_music_id
 from dgsdp.errors import AudioError
 

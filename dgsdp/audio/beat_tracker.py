@@ -180,7 +180,7 @@ def trackers_agree(a: TrackedBeats, b: TrackedBeats) -> tuple[bool, float]:
 def librosa_beats(waveform: np.ndarray, sample_rate: int = SAMPLE_RATE, start_bpm: float | None = None) -> TrackedBeats:
     """librosa's tracker as the 35-d features run it (its onset envelope, its tempo estimate unless ``start_bpm``
     is given, tightness 100), for the comparison."""
-    import librosa
+    from dgsdp.audio.numba_cache import librosa
 
     envelope = librosa.onset.onset_strength(y=np.asarray(waveform, dtype=np.float32), sr=sample_rate, hop_length=HOP)
     if start_bpm is None:

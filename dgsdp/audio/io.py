@@ -11,10 +11,10 @@ import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
-import librosa
 import numpy as np
 import soundfile as sf
 
+from dgsdp.audio.numba_cache import librosa
 from dgsdp.errors import AudioError
 
 RESAMPLE_TYPE = "soxr_hq"

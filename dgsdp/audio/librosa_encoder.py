@@ -10,13 +10,13 @@ from __future__ import annotations
 import warnings
 from typing import Any, ClassVar
 
-import librosa
 import numpy as np
 
 from dgsdp.audio.base import AudioEncoder
 from dgsdp.audio.beat_tracker import SAMPLE_RATE as FLUX_SAMPLE_RATE
 from dgsdp.audio.beat_tracker import track_beats
 from dgsdp.audio.loudness import normalize_loudness
+from dgsdp.audio.numba_cache import librosa
 from dgsdp.audio.tempo import tempo_from_music_id
 from dgsdp.errors import ConfigError
 

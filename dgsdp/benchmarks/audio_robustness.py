@@ -27,7 +27,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import librosa
 import numpy as np
 
 from dgsdp.audio.io import AUDIO_SUFFIXES, load_audio
@@ -39,6 +38,7 @@ from dgsdp.audio.librosa_encoder import (
     PEAK_COLUMN,
     LibrosaEncoder,
 )
+from dgsdp.audio.numba_cache import librosa
 
 GROUPS = {
     "env": slice(ENVELOPE_COLUMN, ENVELOPE_COLUMN + 1),

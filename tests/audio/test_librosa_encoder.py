@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import librosa
 import numpy as np
 import pytest
 from audio_synth import click_track
@@ -10,6 +9,7 @@ from audio_synth import click_track
 from dgsdp.audio import LibrosaEncoder, build_audio_encoder, tempo_from_music_id
 from dgsdp.audio.librosa_encoder import BEAT_COLUMN, ENVELOPE_COLUMN, MFCC_COLUMNS, PEAK_COLUMN
 from dgsdp.audio.loudness import normalize_loudness
+from dgsdp.audio.numba_cache import librosa
 from dgsdp.errors import AudioError, ConfigError
 
 SR = 15360

@@ -7,7 +7,6 @@ the difference. Distances are mean absolute differences in units of the original
 
 from __future__ import annotations
 
-import librosa
 import numpy as np
 import pytest
 
@@ -20,6 +19,7 @@ from dgsdp.audio.librosa_encoder import (
     LibrosaEncoder,
 )
 from dgsdp.audio.loudness import integrated_loudness, normalize_loudness
+from dgsdp.audio.numba_cache import librosa
 from dgsdp.data.synthetic_music import Mastering, synthesize_music
 from dgsdp.errors import ConfigError
 

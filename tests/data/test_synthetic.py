@@ -6,11 +6,11 @@ import json
 import pickle
 from pathlib import Path
 
-import librosa
 import numpy as np
 import pytest
 import torch
 
+from dgsdp.audio.numba_cache import librosa
 from dgsdp.data import synthetic
 from dgsdp.data.aistpp import load_motion_pkl, music_tempo_bpm, parse_name, read_split
 from dgsdp.data.synthetic import (

@@ -6,10 +6,10 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
-import librosa
 import numpy as np
 import pytest
 
+from dgsdp.audio.numba_cache import librosa
 from dgsdp.data.datamodule import DanceDataModule
 from dgsdp.data.synthetic import MANIFEST, generate_synthetic_aistpp, outdated_synthetic, read_manifest
 from dgsdp.data.synthetic_music import (

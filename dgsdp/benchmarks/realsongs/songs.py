@@ -82,7 +82,7 @@ def _dbfs(amplitude: float) -> float:
 
 def analyse_song(path: Path) -> SongInfo | None:
     """Length, loudness and tempo of a file (ffmpeg, else the project's loader); None if nothing decodes it."""
-    import librosa
+    from dgsdp.audio.numba_cache import librosa
 
     samples = ffmpeg_decode(path, ANALYSIS_RATE_HZ)
     decoder = "ffmpeg"
