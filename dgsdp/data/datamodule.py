@@ -444,7 +444,9 @@ class DanceDataModule(L.LightningDataModule):
     (page-locked batches, for asynchronous copies to a GPU) are the data-loading speed settings of the host loader.
     ``on_device`` (auto, true, false) keeps the windows on the training device instead and cuts each batch there
     (:mod:`dgsdp.data.device`; the same batches to the last bit): auto does so on a GPU when the sequences take at
-    most 2 GiB and need no host processing per window (no tempo augmentation, no raw waveforms).
+    most 2 GiB and need no host processing per window (no tempo augmentation, no raw waveforms). Under the
+    trainer's ``overfit_batches`` the training windows come in order, as the validation windows do, from either
+    loader: every epoch, and every process, trains on the same first batches.
     ``audio_encoder`` None with ``waveform_sample_rate`` set yields raw waveform windows; both None yields motion
     only. If ``root`` has no dataset and ``synthetic`` is set, the synthetic dataset is generated there first, but
     only when asked: ``root`` is the synthetic dataset's own folder (``synthetic_root``) or ``generate_synthetic``
@@ -678,8 +680,16 @@ class DanceDataModule(L.LightningDataModule):
             return ResumableLoader(dataset, batch_size=self.batch_size, seed=self.shuffle_seed, **kwargs)
         return DataLoader(dataset, batch_size=self.batch_size, shuffle=False, **kwargs)
 
-    def train_dataloader(self) -> DataLoader:
-        return self._loader("train", shuffle=True)
+    def overfitting(self) -> bool:
+        """Whether the trainer trains on its first few batches over and over (``trainer.overfit_batches``)."""
+        return self.trainer is not None and self.trainer.overfit_batches > 0
+
+    def train_dataloader(self) -> DataLoader | DeviceLoader:
+        """The training windows, shuffled anew every epoch; under ``trainer.overfit_batches`` in order, as the
+        validation windows are served (host or device alike), so that every epoch trains on the same first batches.
+        Lightning's own remedy, a SequentialSampler swapped into the loader, works on neither: the host loader
+        shards the data itself and refuses another sampler, and the device loader has no ``dataset`` to sample."""
+        return self._loader("train", shuffle=not self.overfitting())
 
     def val_dataloader(self) -> DataLoader:
         return self._loader("val", shuffle=False)

@@ -135,7 +135,8 @@ class DeviceLoader:
     windows: in the order of ``sampler`` (the datamodule's :class:`~dgsdp.data.datamodule.EpochShuffleSampler`,
     which also shards the windows across ranks) with full batches only when a rank's share holds more than one, and
     the number of batches served this epoch as the state a resumed run skips; with ``sampler`` None, every window in
-    order (validation and testing)."""
+    order (validation and testing, and training under ``trainer.overfit_batches``: the datamodule asks for that
+    order, as it does of the host loader)."""
 
     def __init__(self, windows: DeviceWindows, *, batch_size: int, sampler: Sampler[int] | None = None) -> None:
         self.windows = windows

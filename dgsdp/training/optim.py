@@ -1,12 +1,16 @@
 """Adan (Xie et al., 2022), the optimiser of EDGE and DGSDP, as one multi-tensor update per step, and the EMA update.
 
 The update is the one of the ``adan-pytorch`` package that the project trained with before (``adan_pytorch.Adan``):
-the same arithmetic in the same order, element by element, and the same state (``step``, ``m``, ``v``, ``n``,
-``prev_grad`` per parameter), so a checkpoint resumes under either and, on the CPU, the weights after each step are
-equal to the last bit (tests/training/test_optim.py). What changes is how it runs: that package loops over the
-parameters in Python, about fifteen small operations each, which on a GPU is thousands of kernel launches a step for a
-model of a few hundred tensors; here each operation runs once over all the parameters (``torch._foreach_*``: fused
-multi-tensor kernels on CUDA; on the CPU the same per-tensor kernels as before).
+the same arithmetic in the same order, element by element, the same state (``step``, ``m``, ``v``, ``n``,
+``prev_grad`` per parameter) and the same settings per parameter group (``lr``, ``betas``, ``eps``,
+``weight_decay``, ``restart_cond``), so an optimiser state saved by either resumes under the other and, on the CPU,
+the weights after each step are equal to the last bit (tests/training/test_optim.py). What changes is how it runs:
+that package loops over the parameters in Python, about fifteen small operations each, which on a GPU is thousands
+of kernel launches a step for a model of a few hundred tensors; here each operation runs once over all the float32
+and float64 parameters (``torch._foreach_*``: fused multi-tensor kernels on CUDA; on the CPU the same per-tensor
+kernels as before). Half-precision parameters (``trainer.precision=bf16-true`` or ``16-true``) and groups with a
+``restart_cond`` take adan-pytorch's own per-parameter loop: the multi-tensor kernels round bfloat16 and float16
+products differently from the per-tensor ones, so the states would drift apart from the second step on.
 
 :func:`ema_update` is the EMA step of :class:`torch.optim.swa_utils.AveragedModel` (``use_buffers=True`` with
 ``get_ema_multi_avg_fn``) without its two reads of a device tensor per step, which stall a GPU until it has caught up.
@@ -40,12 +44,20 @@ def _chunks(params: list[torch.Tensor], elements: int | None) -> list[list[torch
     return out
 
 
+FOREACH_DTYPES = (torch.float32, torch.float64)
+"""Parameter dtypes whose multi-tensor update rounds as adan-pytorch's per-parameter one does; the others (bfloat16,
+float16) update one parameter at a time, with its operations."""
+
+RestartCond = Callable[[dict[str, Any]], bool]
+
+
 class Adan(torch.optim.Optimizer):
     """Adan with adan-pytorch's update (its defaults: ``betas`` (0.02, 0.08, 0.01), decoupled weight decay divided
     out after the step, bias correction of all three moments) run as multi-tensor operations.
 
     ``betas`` are adan-pytorch's (the weights of the new value: ``m <- (1 - b1) m + b1 g``), not the paper's
-    (``1 - b``). Sparse gradients are refused."""
+    (``1 - b``). ``restart_cond`` is adan-pytorch's too: called with a parameter's state after its step (``step``
+    not yet counted up), true restarts the moments from the gradient and steps again. Sparse gradients are refused."""
 
     def __init__(
         self,
@@ -54,13 +66,26 @@ class Adan(torch.optim.Optimizer):
         betas: tuple[float, float, float] = (0.02, 0.08, 0.01),
         eps: float = 1e-8,
         weight_decay: float = 0.0,
+        restart_cond: RestartCond | None = None,
     ) -> None:
         betas = tuple(float(b) for b in betas)  # a config list becomes the tuple adan-pytorch stores
         if len(betas) != 3 or not all(0.0 <= b <= 1.0 for b in betas):
             raise ValueError(f"Adan needs three betas in [0, 1], got {betas}")
         if not (lr >= 0.0 and eps >= 0.0 and weight_decay >= 0.0):
             raise ValueError(f"Adan needs lr, eps and weight_decay >= 0, got {lr}, {eps}, {weight_decay}")
-        super().__init__(params, {"lr": lr, "betas": betas, "eps": eps, "weight_decay": weight_decay})
+        if restart_cond is not None and not callable(restart_cond):
+            raise ValueError(
+                f"Adan's restart_cond must be a function of a parameter's state or None, got {restart_cond!r}"
+            )
+        # the keys of adan-pytorch's param groups, all of them: it reads each one at every step
+        defaults = {"lr": lr, "betas": betas, "eps": eps, "weight_decay": weight_decay, "restart_cond": restart_cond}
+        super().__init__(params, defaults)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Also a state saved before the groups held ``restart_cond`` (which adan-pytorch needs to resume it)."""
+        super().__setstate__(state)
+        for group in self.param_groups:
+            group.setdefault("restart_cond", None)
 
     @torch.no_grad()
     def step(self, closure: Callable[[], Any] | None = None) -> Any:
@@ -81,11 +106,46 @@ class Adan(torch.optim.Optimizer):
                     state["step"] = 0
                     for name in ("prev_grad", "m", "v", "n"):
                         state[name] = torch.zeros_like(p.grad)
+                if group.get("restart_cond") is not None or p.dtype not in FOREACH_DTYPES:
+                    self._update_one(group, p)
+                    continue
                 batches.setdefault((int(state["step"]), p.device, p.dtype), []).append(p)
             for (step, device, _), params in batches.items():
                 for chunk in _chunks(params, None if device.type == "cuda" else CPU_CHUNK_ELEMENTS):
                     self._update(group, chunk, step)
         return loss
+
+    def _update_one(self, group: dict[str, Any], p: torch.Tensor) -> None:
+        """One step of ``p`` as adan-pytorch's loop takes it, operation for operation (the same rounding in every
+        dtype), with its restart."""
+        lr, eps, weight_decay = group["lr"], group["eps"], group["weight_decay"]
+        beta1, beta2, beta3 = group["betas"]
+        restart_cond = group.get("restart_cond")
+        data, grad = p.detach(), p.grad.detach()
+        state = self.state[p]
+        step, m, v, n, prev_grad = state["step"], state["m"], state["v"], state["n"], state["prev_grad"]
+        if step > 0:
+            m.mul_(1 - beta1).add_(grad, alpha=beta1)
+            grad_diff = grad - prev_grad
+            v.mul_(1 - beta2).add_(grad_diff, alpha=beta2)
+            next_n = (grad + (1 - beta2) * grad_diff) ** 2
+            n.mul_(1 - beta3).add_(next_n, alpha=beta3)
+        step += 1
+        correct_m, correct_v, correct_n = (1 / (1 - (1 - b) ** step) for b in (beta1, beta2, beta3))
+
+        def grad_step_() -> None:
+            weighted_step_size = lr / (n * correct_n).sqrt().add_(eps)
+            direction = m * correct_m + (1 - beta2) * v * correct_v
+            data.addcmul_(weighted_step_size, direction, value=-1.0).div_(1 + weight_decay * lr)
+
+        grad_step_()
+        if restart_cond is not None and restart_cond(state):
+            m.copy_(grad)
+            v.zero_()
+            n.copy_(grad**2)
+            grad_step_()
+        prev_grad.copy_(grad)
+        state["step"] = step
 
     def _update(self, group: dict[str, Any], params: list[torch.Tensor], step: int) -> None:
         """One step of adan-pytorch's update for ``params``, all at ``step`` steps done before this one."""

@@ -1,8 +1,11 @@
 """Windows kept on the training device (data.on_device): the host loader's batches, order, shards and resume state,
-equal to the last bit, and the same trained weights."""
+equal to the last bit, and the same trained weights; under trainer.overfit_batches, the training windows in order."""
+
+from types import SimpleNamespace
 
 import pytest
 import torch
+from torch.utils.data import SequentialSampler
 
 from dgsdp.audio import LibrosaEncoder
 from dgsdp.data.datamodule import DanceDataModule, EpochShuffleSampler, ResumableLoader
@@ -114,3 +117,25 @@ def test_choices_and_refusals(datamodule, tmp_path):
     wave.setup("fit")
     with pytest.raises(ConfigError, match="waveform"):
         wave.train_dataloader()
+
+
+def test_overfit_batches_serve_the_training_windows_in_order(datamodule):
+    """Under trainer.overfit_batches the device loader and the host loader both serve the training windows in their
+    stored order through a SequentialSampler (which Lightning leaves as it is), the same batches every epoch."""
+    root, cache = str(datamodule.root), str(datamodule.cache_dir)
+    trainer = SimpleNamespace(overfit_batches=2, strategy=SimpleNamespace(root_device=torch.device("cpu")))
+    epochs = {}
+    for on_device in ("true", "false"):
+        dm = DanceDataModule(root, cache, batch_size=4, progress=False, on_device=on_device)
+        dm.setup("fit")
+        dm.trainer = trainer
+        loader = dm.train_dataloader()
+        assert isinstance(loader, DeviceLoader if on_device == "true" else torch.utils.data.DataLoader)
+        assert isinstance(loader.sampler, SequentialSampler)
+        epochs[on_device] = [list(loader) for _ in range(2)]
+        dataset = dm.datasets["train"]
+        stored = [(dataset.sequences[i].name, start) for i, start in dataset.index]
+        for batches in epochs[on_device]:
+            assert [(n, s) for b in batches for n, s in zip(b["name"], b["start"].tolist(), strict=True)] == stored
+    for host, device in zip(epochs["false"][0], epochs["true"][0], strict=True):
+        assert_same_batch(host, device)
