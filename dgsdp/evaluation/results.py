@@ -53,6 +53,8 @@ def results_markdown(results: Mapping[str, Any]) -> str:
         out[-1:] = [f"Sampling: {sampling_summary(sampling)}{student}", ""]
     if results.get("beats"):
         out += [f"BeatAlign scored against: {results['beats']}", ""]
+    if results.get("finishing"):
+        out += [f"Finishing: {results['finishing']['description']}", ""]
     out.append(markdown_table(["row", *metrics, "trials"], rows))
     notes = [f"- {r['name']}: {r['notes']}" for r in results["rows"] if r.get("notes")]
     if notes:

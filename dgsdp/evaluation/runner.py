@@ -98,6 +98,7 @@ class Evaluator:
             pool = (pk, pg)
 
         variants = spec.variants()
+        judged_scoring_beats = False  # a retimed dance scored on the beats its judge saw
         by_length = {v.seconds: self.source.clips(music_seqs, v.seconds) for v in variants}
         gt_trials = spec.trials if spec.clips_per_trial is not None else 1
         rows: list[dict[str, Any]] = []
@@ -137,6 +138,10 @@ class Evaluator:
                 per_trial.append(
                     self.scorer.score(variant.name, joints, chosen, references[variant.seconds], classifier)
                 )
+                # beat sync retimes and judges on the clips' beats (nothing given); BeatAlign scores on known ones
+                judged_scoring_beats |= (
+                    self.cleanup and variant.task == "none" and any(c.known_beats_30fps is None for c in chosen)
+                )
                 bar.update()
             rows.append(
                 self._row(variant.name, "generated", variant.seconds, variant.weight, variant.task,
@@ -153,8 +158,33 @@ class Evaluator:
             "warnings": self.warnings.items,
             "n_clips": {f"{s:g}": len(c) for s, c in by_length.items()},
             "beats": self.source.beat_source,  # what BeatAlign was scored against
+            "finishing": self.finishing(any(v.task == "none" for v in variants), judged_scoring_beats),
             "classifier_fitted": classifier is not None,
         }
+
+    def finishing(self, retimed: bool, judged_scoring_beats: bool) -> dict[str, Any] | None:
+        """How the generated dances were finished (None: the model's raw output is scored). ``retimed``: a row
+        without an editing task (beat sync retimes only those); ``judged_scoring_beats``: a retimed dance was scored
+        on the beats that beat sync's judge saw (the clip's tracker beats: no known beats), so BeatAlign is not
+        independent of the judge's choice."""
+        if not self.cleanup:
+            return None
+        text = "the dances as generate.py writes them (cleanup=true): feet on the floor"
+        if retimed:
+            text += (
+                "; where nothing is given, first retimed onto each clip's beats by librosa's tracker, the retime kept "
+                "only where a judge on those same beats found the finished dance no worse than in the model's own "
+                "timing (docs/beatsync.md)"
+            )
+            text += (
+                "; BeatAlign is scored against the same beats, which the retime aligned to and its judge saw: it "
+                "measures the retime and the judge's choice as well as the model, not an independent check"
+                if judged_scoring_beats
+                else "; BeatAlign is scored against the songs' known beats, which neither the retime nor its judge saw"
+            )
+        else:
+            text += "; no row is retimed (an editing task keeps its timing)"
+        return {"cleanup": True, "judge_saw_scoring_beats": judged_scoring_beats, "description": text}
 
     def _row(
         self, name: str, kind: str, seconds: float, weight: float | None, task: str, n_dances: int,

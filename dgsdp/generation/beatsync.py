@@ -20,17 +20,24 @@ So the timing moves by at most a quarter beat, the length is unchanged, and the 
 returned unchanged.
 
 4. The judge: a retime aligned to one tracker's beats can still lose the beat the model had (a pause moved onto a
-   beat the tracker got wrong, a clear pause traded for a shallow one). So the retimed dance is kept only where
-   its timing is no worse than the model's own on every beat set it is judged by (the beats it aligned to, and
-   ``check_beats``: another tracker's, which it did not align to; :func:`other_tracker_beats`) and better on one:
-   the margin of its beat alignment score over its half-beat-shifted copy's
-   (:func:`dgsdp.metrics.beats.beat_scores`, both variants). Elsewhere the model's own timing is kept, and the stats
-   say which.
+   beat the tracker got wrong, a clear pause traded for a shallow one). So each dance is judged by its margins: the
+   margin of its beat alignment score over its half-beat-shifted copy's (:func:`dgsdp.metrics.beats.beat_scores`,
+   both variants) on every beat set it is judged by (the beats it aligned to, and ``check_beats``: another
+   tracker's, which it did not align to; :func:`other_tracker_beats`). The judge decides on what the user gets:
+   given the ``finish`` that follows the retime (the floor cleanup, which moves pauses too), it compares the
+   finished retime with the finished dance in the model's own timing, and the model's raw dance
+   (:func:`keep_retime`). The finished retime is kept where no margin falls below the finished own timing's and one
+   rises; or where the floor cleanup alone put the finished own timing below the raw dance on some margin and the
+   finished retime is below it on none. So the result is never below the raw dance on a judged margin where either
+   finished timing avoids it, and otherwise never below the finished own timing; the stats say which timing was kept
+   and on how many margins the result is still below the raw dance, and by how much (``below_raw_margins``,
+   ``below_raw_by``: the floor cleanup's own doing, which neither timing avoided).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -112,14 +119,38 @@ def timing_margins(joints: np.ndarray, beat_sets: list[np.ndarray], fps: float) 
     return np.asarray(out, dtype=np.float64)
 
 
+MARGIN_TOLERANCE = 1e-9  # margins closer than this count as equal
+
+
 def retime_helps(raw: np.ndarray, retimed: np.ndarray) -> bool:
     """Whether retimed margins (:func:`timing_margins`) are no lower than the raw dance's on every beat set and
-    variant, and higher on one (margins equal to 1e-9 count as equal)."""
+    variant, and higher on one (margins within :data:`MARGIN_TOLERANCE` count as equal)."""
     ok = np.isfinite(raw) & np.isfinite(retimed)
     if not ok.any():
         return False
     diff = retimed[ok] - raw[ok]
-    return bool((diff >= -1e-9).all() and (diff > 1e-9).any())
+    return bool((diff >= -MARGIN_TOLERANCE).all() and (diff > MARGIN_TOLERANCE).any())
+
+
+def margins_below(reference: np.ndarray, margins: np.ndarray) -> int:
+    """How many margins (:func:`timing_margins`) lie below the reference's (NaN on either side: not counted)."""
+    ok = np.isfinite(reference) & np.isfinite(margins)
+    return int((margins[ok] < reference[ok] - MARGIN_TOLERANCE).sum())
+
+
+def largest_drop(reference: np.ndarray, margins: np.ndarray) -> float:
+    """How far the margins (:func:`timing_margins`) fall below the reference's at most (0: nowhere)."""
+    ok = np.isfinite(reference) & np.isfinite(margins)
+    return float(np.max(reference[ok] - margins[ok], initial=0.0))
+
+
+def keep_retime(raw: np.ndarray, own: np.ndarray, retimed: np.ndarray) -> bool:
+    """The judge (step 4 of the module docstring) on the margins (:func:`timing_margins`) of the model's ``raw`` dance,
+    of the finished dance in its ``own`` timing and of the finished ``retimed`` dance (without a finishing step,
+    ``own`` is ``raw``): keep the retime where it is no lower than the own timing on every margin and higher on one
+    (:func:`retime_helps`), or where the own timing fell below the raw dance on a margin (the finishing moved its
+    pauses) and the retime falls below it on none."""
+    return retime_helps(own, retimed) or (margins_below(raw, own) > 0 and margins_below(raw, retimed) == 0)
 
 
 def _local_periods(beats: np.ndarray) -> np.ndarray:
@@ -211,6 +242,21 @@ def resample(motion: torch.Tensor, times: np.ndarray) -> torch.Tensor:
     return motion[lo] * (1 - w) + motion[hi] * w
 
 
+# what follows the retime (the floor cleanup): motions (S, T, D) and a list for one stats dict each -> finished motions
+Finish = Callable[[torch.Tensor, list[dict[str, float]]], torch.Tensor]
+
+
+def _retime(
+    x: torch.Tensor, beats: np.ndarray, fps: float, s: BeatSync, skeleton: Skeleton
+) -> tuple[torch.Tensor, np.ndarray, int]:
+    """One dance (T, D) retimed onto beat frames (steps 1-3) -> (the retimed dance, each output frame's source time,
+    the number of anchored beats; no anchor: the dance itself)."""
+    joints = pose_to_joints(x.detach().double().cpu(), skeleton).numpy()[:, smpl24_layout(skeleton)]
+    anchors, sources = beat_anchors(kinematic_speed(joints, fps), beats, s)
+    times = warp_times(len(x), anchors, sources)
+    return (resample(x, times) if len(anchors) else x), times, len(anchors)
+
+
 def sync_to_beats(
     motion: torch.Tensor,
     music_beats: np.ndarray,
@@ -221,44 +267,77 @@ def sync_to_beats(
     stats: list[dict[str, float]] | None = None,
     skeleton: Skeleton = SMPL24,
     check_beats: list[np.ndarray] | tuple[np.ndarray, ...] = (),
+    finish: Finish | None = None,
 ) -> torch.Tensor:
     """Unnormalised motion (T, D) or (S, T, D) of ``skeleton`` (D its pose size; the speed is that of its joints in
     SMPL's layout, :func:`~dgsdp.motion.smpl24_layout`) at ``fps`` and music beat frames (B,) of the same frame
     rate -> the motion retimed so that its speed dips fall on the beats (see the module docstring), each dance kept
-    as it was where the retime is worse on ``music_beats`` or on any of ``check_beats`` (other trackers' beat frames;
-    step 4, unless ``settings.judge`` is False). With an editing ``mask`` the motion is returned unchanged.
-    ``stats``: a list that gets one dict per motion: ``beats``, ``anchored_beats``, the mean and largest retiming
-    offset ``mean_shift_ms``, ``max_shift_ms`` (how far in time a frame's pose moved; 0 where the model's timing was
-    kept), ``retimed`` (1 where the retime was kept, 0 where the model's own timing was) and ``judged_beat_sets``."""
+    in its own timing where the judge finds the retime worse on ``music_beats`` or on any of ``check_beats`` (other
+    trackers' beat frames; step 4, unless ``settings.judge`` is False). With an editing ``mask`` the motion is
+    returned unchanged (finished).
+
+    ``finish``: the step that follows the retime (the floor cleanup): motions (S', T, D) and a list that gets one
+    stats dict per motion -> the finished motions. Given, every dance comes back finished, and the judge decides on
+    the finished dances (it runs ``finish`` on the dances in their own timing and, for those with anchors, retimed:
+    at most twice per dance). ``stats``: a list that gets one dict per motion: ``beats``, ``anchored_beats``, the mean
+    and largest retiming offset ``mean_shift_ms``, ``max_shift_ms`` (how far in time a frame's pose moved; 0 where the
+    model's timing was kept), ``retimed`` (1 where the retime was kept, 0 where the model's own timing was),
+    ``judged_beat_sets``, ``below_raw_margins`` (judged margins on which the result lies below the raw dance: only a
+    ``finish`` can leave any) and ``below_raw_by`` (how far at most), and the stats of ``finish`` for the dance
+    returned."""
     check_pose_dim(motion, skeleton, "sync_to_beats's motion")
     if motion.ndim not in (2, 3):
         raise ValueError(f"sync_to_beats needs motion (T, D) or (S, T, D), got {tuple(motion.shape)}")
     s = settings or BeatSync()
     batch = motion if motion.ndim == 3 else motion[None]
+
+    def finished(x: torch.Tensor) -> tuple[torch.Tensor, list[dict[str, float]]]:
+        if finish is None:
+            return x, [{} for _ in x]
+        notes: list[dict[str, float]] = []
+        return finish(x, notes), notes
+
     unchanged = {"beats": len(music_beats), "anchored_beats": 0, "mean_shift_ms": 0.0, "max_shift_ms": 0.0,
-                 "retimed": 0.0, "judged_beat_sets": 0.0}  # fmt: skip
+                 "retimed": 0.0, "judged_beat_sets": 0.0, "below_raw_margins": 0.0,
+                 "below_raw_by": 0.0}  # fmt: skip
     if mask is not None or motion.shape[-2] < 3:
+        out, notes = finished(batch)
         if stats is not None:
-            stats.extend(dict(unchanged) for _ in batch)
-        return motion
-    out = []
+            stats.extend({**unchanged, **n} for n in notes)
+        return motion if finish is None else (out if motion.ndim == 3 else out[0])
     layout = smpl24_layout(skeleton)
     beat_sets = [np.asarray(music_beats, dtype=np.int64), *(np.asarray(b, dtype=np.int64) for b in check_beats)]
-    for x in batch:
-        joints = pose_to_joints(x.detach().double().cpu(), skeleton).numpy()[:, layout]
-        speed = kinematic_speed(joints, fps)
-        beats, sources = beat_anchors(speed, beat_sets[0], s)
-        times = warp_times(len(x), beats, sources)
-        retimed = resample(x, times) if len(beats) else x
-        keep = len(beats) > 0
-        if keep and s.judge:
-            moved = pose_to_joints(retimed.detach().double().cpu(), skeleton).numpy()[:, layout]
-            keep = retime_helps(timing_margins(joints, beat_sets, fps), timing_margins(moved, beat_sets, fps))
-        out.append(retimed if keep else x)
+    retimes = [_retime(x, beat_sets[0], fps, s, skeleton) for x in batch]
+    moved = [i for i, (_, _, anchors) in enumerate(retimes) if anchors > 0]
+    if s.judge:  # both timings finished, the retime only where it moved something
+        own, own_notes = finished(batch)
+        new, new_notes = finished(torch.stack([retimes[i][0] for i in moved])) if moved else (own[:0], [])
+        row = {i: k for k, i in enumerate(moved)}
+    else:  # every retime kept: one finishing per dance
+        own, own_notes = finished(torch.stack([r[0] for r in retimes]))
+        new, new_notes, row = own, own_notes, {i: i for i in moved}
+
+    def margins(x: torch.Tensor) -> np.ndarray:
+        return timing_margins(pose_to_joints(x.detach().double().cpu(), skeleton).numpy()[:, layout], beat_sets, fps)
+
+    out = []
+    for i, x in enumerate(batch):
+        keep, below, drop = i in row, 0, 0.0
+        if s.judge and (keep or finish is not None):
+            raw = margins(x)
+            own_margins = raw if finish is None else margins(own[i])
+            new_margins = margins(new[row[i]]) if keep else own_margins
+            keep = keep and keep_retime(raw, own_margins, new_margins)
+            kept_margins = new_margins if keep else own_margins
+            below = margins_below(raw, kept_margins)
+            drop = largest_drop(raw, kept_margins) if below else 0.0
+        out.append(new[row[i]] if keep else own[i])
         if stats is not None:
-            shift_ms = np.abs(times - np.arange(len(x))) * 1000.0 / fps if keep else np.zeros(1)
-            stats.append({**unchanged, "anchored_beats": len(beats), "mean_shift_ms": float(shift_ms.mean()),
+            shift_ms = np.abs(retimes[i][1] - np.arange(len(x))) * 1000.0 / fps if keep else np.zeros(1)
+            stats.append({**unchanged, "anchored_beats": retimes[i][2], "mean_shift_ms": float(shift_ms.mean()),
                           "max_shift_ms": float(shift_ms.max()), "retimed": float(keep),
-                          "judged_beat_sets": float(len(beat_sets) if s.judge else 0)})  # fmt: skip
+                          "judged_beat_sets": float(len(beat_sets) if s.judge else 0),
+                          "below_raw_margins": float(below), "below_raw_by": drop,
+                          **(new_notes[row[i]] if keep else own_notes[i])})  # fmt: skip
     result = torch.stack(out)
     return result if motion.ndim == 3 else result[0]

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from dgsdp.audio.tempo import TempoFold
+from dgsdp.metrics.beats import BAS_VARIANTS
 from dgsdp.motion import SMPL24, Skeleton, check_pose_dim, pose_to_joints, unpack_pose
 from dgsdp.motion.rotation import matrix_to_axis_angle
 from dgsdp.style.reading import TextReading
@@ -42,8 +43,10 @@ class Dance:
     def notes(self) -> list[str]:
         """What a user should know about how these dances were made, one line each: how the style was read (the
         genre, or how free text was read and at what speed: :class:`~dgsdp.style.reading.TextReading`), a song
-        danced in half or double time (``sampling.tempo_fold``), and whether beat sync kept its retime or the model's own timing (the retime
-        is kept only where it is no worse on either tracker's beats: docs/beatsync.md)."""
+        danced in half or double time (``sampling.tempo_fold``), whether beat sync kept its retime or the model's own
+        timing (the retime is kept only where the finished dance is no worse on either tracker's beats:
+        docs/beatsync.md), and dances that the floor cleanup left below the model's raw timing on a judged beat
+        score (the margin of BAS over the half-beat-shifted copy's) whichever timing was kept, and by how much."""
         notes = list(dict.fromkeys(reading.describe() for reading in self.readings))  # each span's style once
         if self.tempo.octaves:
             notes.append(f"the song: {self.tempo.describe()} (sampling.tempo_fold)")
@@ -54,8 +57,23 @@ class Dance:
         elif judged:
             which = "" if len(judged) == 1 else f" in {len(judged) - kept} of {len(judged)} dances"
             notes.append(
-                f"beat sync: the model's own timing kept{which} (retimed onto the beats, its timing was worse "
-                "by one of the trackers' beats)"
+                f"beat sync: the model's own timing kept{which} (retimed onto the beats, the finished dance's timing "
+                "was worse by one of the trackers' beats)"
+            )
+        below = [f for f in judged if f.get("below_raw_margins")]
+        by = max((f.get("below_raw_by", 0.0) for f in below), default=0.0)
+        if len(judged) == 1 and below:
+            scores = int(below[0]["judged_beat_sets"]) * len(BAS_VARIANTS)
+            notes.append(
+                "beat sync: the floor cleanup moved the pauses: the dance's timing is below the model's raw output on "
+                f"{below[0]['below_raw_margins']:g} of {scores} judged beat scores, by up to {by:.3f} (beat sync had "
+                "no timing that avoided it)"
+            )
+        elif below:
+            notes.append(
+                f"beat sync: the floor cleanup moved the pauses: {len(below)} of {len(judged)} dances' timing is below "
+                f"the model's raw output on a judged beat score, by up to {by:.3f} (beat sync had no timing that "
+                "avoided it)"
             )
         return notes
 

@@ -652,30 +652,35 @@ class DanceGenerator:
         check_beats: list[np.ndarray] | tuple[np.ndarray, ...] = (),
     ) -> torch.Tensor:
         """The model's dances (S, T, D) as generate.py writes them. ``cleanup`` False: unchanged (the model's raw
-        output). Otherwise, first, unless ``beat_sync`` is False, each dance is retimed so that its pauses fall on
-        the music beats (frames, (K,); :func:`dgsdp.generation.beatsync.sync_to_beats`; not with an editing
-        ``mask``, whose given frames would move, nor without beats), where the retime is no worse on those beats
-        and on each of ``check_beats`` (another tracker's beat frames); then the feet are put on the run's floor
-        (:func:`dgsdp.motion.clean_motion`; given channels of an edit are kept exactly). ``stats``: a list that gets
+        output). Otherwise the feet are put on the run's floor (:func:`dgsdp.motion.clean_motion`; given channels of an
+        edit are kept exactly), and, unless ``beat_sync`` is False, each dance is first retimed so that its pauses fall
+        on the music beats (frames, (K,); :func:`dgsdp.generation.beatsync.sync_to_beats`; not with an editing
+        ``mask``, whose given frames would move, nor without beats). The judge decides on the finished dances: the
+        retime is kept where the finished dance is no worse on those beats and on each of ``check_beats`` (another
+        tracker's beat frames) than the same dance finished in the model's own timing (and than the raw dance where
+        the cleanup alone lowered that; the floor cleanup runs at most twice per dance). ``stats``: a list that gets
         one dict per dance of what each step changed (the ``stats`` of both functions; empty for a step not run)."""
-        notes: list[dict[str, float]] = [{} for _ in range(motions.shape[0] if motions.ndim == 3 else 1)]
-        if cleanup is not False:
-            if beat_sync is not False and music_beats is not None:
-                settings = beat_sync if isinstance(beat_sync, BeatSync) else None
-                beats = np.asarray(music_beats)
-                retimed: list[dict[str, float]] = []
-                motions = sync_to_beats(
-                    motions, beats[beats < motions.shape[-2]], self.fps, mask=mask, settings=settings, stats=retimed,
-                    skeleton=self.skeleton, check_beats=[np.asarray(b) for b in check_beats],
-                )  # fmt: skip
-                notes = [{**n, **r} for n, r in zip(notes, retimed)]
-            settings = cleanup if isinstance(cleanup, FloorCleanup) else None
-            cleaned: list[dict[str, int]] = []
-            motions = clean_motion(
-                motions, self.fps, self.floor_height, mask=mask, settings=settings, stats=cleaned,
-                skeleton=self.skeleton,
+        if cleanup is False:
+            if stats is not None:
+                stats.extend({} for _ in range(motions.shape[0] if motions.ndim == 3 else 1))
+            return motions
+        floor = cleanup if isinstance(cleanup, FloorCleanup) else None
+
+        def clean(x: torch.Tensor, cleaned: list[dict[str, float]]) -> torch.Tensor:
+            return clean_motion(
+                x, self.fps, self.floor_height, mask=mask, settings=floor, stats=cleaned, skeleton=self.skeleton
+            )
+
+        notes: list[dict[str, float]] = []
+        if beat_sync is not False and music_beats is not None:
+            settings = beat_sync if isinstance(beat_sync, BeatSync) else None
+            beats = np.asarray(music_beats)
+            motions = sync_to_beats(
+                motions, beats[beats < motions.shape[-2]], self.fps, mask=mask, settings=settings, stats=notes,
+                skeleton=self.skeleton, check_beats=[np.asarray(b) for b in check_beats], finish=clean,
             )  # fmt: skip
-            notes = [{**n, **c} for n, c in zip(notes, cleaned)]
+        else:
+            motions = clean(motions, notes)
         if stats is not None:
             stats.extend(notes)
         return motions

@@ -269,6 +269,31 @@ def test_evaluation_scores_the_raw_model_unless_cleanup_is_on(trained_run):
         assert np.abs(c - r).max() > 0 or r[40:, :, 2].min() >= floor - 0.01
 
 
+def test_finished_dances_say_whether_the_judge_saw_the_scored_beats(trained_run):
+    """cleanup=true retimes each dance onto its clip's (librosa's) beats and judges the retime on those beats: on a
+    dataset without known beats (real AIST++) BeatAlign is scored against the same beats, and the results say so;
+    against a synthetic dataset's known beats, the judge did not see them. The raw model's results say nothing."""
+    protocol = {"name": "t", "lengths_seconds": [5.0], "splits": ["test"], "trials": 1, "max_dances": 4}
+    generator = DanceGenerator(load_model(trained_run["checkpoint"]), cache_dir=trained_run["cache"])
+    spec = ProtocolSpec.from_config(protocol)
+    settings = SamplingSettings(steps=2)
+    for root, saw in ((tmp_copy_without_manifest(trained_run["root"]), True), (trained_run["root"], False)):
+        ev = Evaluator(generator, spec, data_root=root, cache_dir=trained_run["cache"], sampling=settings,
+                       progress=False, cleanup=True)  # fmt: skip
+        results = ev.run()
+        finishing = results["finishing"]
+        assert finishing["cleanup"] and finishing["judge_saw_scoring_beats"] is saw
+        text = finishing["description"]
+        assert "a judge on those same beats" in text
+        assert ("not an independent check" in text) is saw
+        assert ("neither the retime nor its judge saw" in text) is not saw
+        assert f"Finishing: {text}" in results_markdown(results)
+    assert "no row is retimed" in ev.finishing(retimed=False, judged_scoring_beats=False)["description"]
+    raw = Evaluator(generator, spec, data_root=trained_run["root"], cache_dir=trained_run["cache"], sampling=settings,
+                    progress=False).run()  # fmt: skip
+    assert raw["finishing"] is None and "Finishing:" not in results_markdown(raw)
+
+
 def test_subsets_cover_every_genre(trained_run):
     ev = evaluator(trained_run, {"name": "t", "clips_per_trial": 10})
     clips = ev.source.clips(

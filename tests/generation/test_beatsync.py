@@ -164,3 +164,60 @@ def test_a_dance_says_which_timing_beat_sync_kept():
     [note] = Dance(motion, 30, finishing=[{**judged, "retimed": 1.0}, {**judged, "retimed": 0.0}]).notes()
     assert note.startswith("beat sync: the model's own timing kept in 1 of 2 dances")
     assert Dance(motion, 30, finishing=[{"beats": 4.0, "judged_beat_sets": 0.0}]).notes() == []  # beat sync off
+
+
+def bouncing_walk(seed: int, n: int = 300) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
+    """The walking body with its pauses up to 2 frames off the beats (120 BPM) and its root bouncing 10 cm at a
+    random rate, with another tracker's beats off by up to 2 frames: (motion, beats, the other tracker's beats).
+    The floor cleanup puts the bouncing root back on the floor, which moves the speed dips."""
+    rng = np.random.default_rng(seed)
+    beats = np.arange(20, 280, PERIOD)
+    pauses = beats + rng.uniform(-2, 2, len(beats))
+    motion = walking_with_pauses(np.concatenate([[pauses[0] - PERIOD], pauses, [n + 5.0]]), n)
+    t = np.arange(n)
+    motion[:, 6] += torch.from_numpy(0.1 * np.sin(2 * np.pi * t / rng.uniform(8, 20) + rng.uniform(0, 2 * np.pi)))
+    return motion.float(), beats, beats + rng.integers(-2, 3)
+
+
+def test_the_judge_decides_on_the_finished_dance():
+    """The floor cleanup runs after the retime and moves the pauses too, so the judge decides on the finished dances:
+    over 12 bouncing walks, the finished dance (DanceGenerator.finish, the floor cleanup on the floor at 0) is the
+    cleaned retime where the stats say it was kept, else the cleaned raw dance; on every judged margin (BAS minus
+    the half-beat-shifted copy's, both variants, both beat sets) it is no lower than the cleaned raw dance's or no
+    lower than the raw dance's; it lies below the raw dance only where both cleaned timings do, and the stats and
+    the notes say on how many margins and by how much. (Judged before the cleanup, seeds 0 and 7 fell below both.)"""
+    from types import SimpleNamespace
+
+    from dgsdp.generation import Dance, DanceGenerator
+    from dgsdp.metrics.beats import beat_scores
+    from dgsdp.motion import SMPL24, clean_motion
+
+    def margins(motion: torch.Tensor, beat_sets: list[np.ndarray]) -> np.ndarray:
+        joints = pose_to_joints(motion.double()).numpy()
+        scores = [beat_scores(joints, b, fps=FPS, variant=v) for b in beat_sets for v in ("bas", "bas_edge")]
+        return np.array([s.bas - s.shifted for s in scores])
+
+    generator = SimpleNamespace(fps=30, floor_height=0.0, skeleton=SMPL24)  # what finish reads of a generator
+    seen = set()
+    for seed in range(12):
+        motion, beats, other = bouncing_walk(seed)
+        stats: list[dict] = []
+        finished = DanceGenerator.finish(generator, motion[None], beats, stats=stats, check_beats=[other])[0]
+        own = clean_motion(motion, FPS, 0.0)
+        retimed = clean_motion(sync_to_beats(motion, beats, FPS, settings=BeatSync(judge=False)), FPS, 0.0)
+        raw_m, own_m, new_m, got = (margins(m, [beats, other]) for m in (motion, own, retimed, finished))
+        assert (got >= own_m - 1e-9).all() or (got >= raw_m - 1e-9).all(), f"seed {seed}: {got} {own_m} {raw_m}"
+        below = int((got < raw_m - 1e-9).sum())
+        if below:  # the cleanup's own doing: no timing avoided it
+            assert (own_m < raw_m - 1e-9).any() and (new_m < raw_m - 1e-9).any()
+        kept = stats[0]["retimed"] == 1.0
+        torch.testing.assert_close(finished, retimed if kept else own, atol=1e-6, rtol=0)
+        assert stats[0]["below_raw_margins"] == below and stats[0]["judged_beat_sets"] == 2
+        assert stats[0]["below_raw_by"] == pytest.approx(max(0.0, (raw_m - got).max()), abs=1e-12)
+        assert "foot_locked_frames" in stats[0]  # the cleanup's stats of the dance returned
+        notes = Dance(finished[None], 30, raw=motion[None], finishing=stats).notes()
+        assert notes[0].startswith("beat sync: retimed" if kept else "beat sync: the model's own timing kept")
+        said = f"on {below} of 4 judged beat scores, by up to {max(0.0, (raw_m - got).max()):.3f}"
+        assert any("the floor cleanup moved the pauses" in n and said in n for n in notes) == (below > 0)
+        seen.add((kept, below > 0))
+    assert {(True, False), (False, False), (False, True)} <= seen  # each outcome was tested

@@ -194,7 +194,10 @@ def finishing_text(n: dict[str, float]) -> str:
         )
     elif "anchored_beats" in n and n.get("judged_beat_sets"):
         parts.append(f"beat sync kept the model's timing (the retime onto {n['anchored_beats']:g}/{n['beats']:g} "
-                     f"beats was worse on one of {n['judged_beat_sets']:g} trackers' beats)")  # fmt: skip
+                     f"beats, finished, was worse on one of {n['judged_beat_sets']:g} trackers' beats)")  # fmt: skip
+    if n.get("below_raw_margins"):
+        parts.append(f"the floor cleanup left the timing below the raw dance's on {n['below_raw_margins']:g} judged "
+                     f"beat scores, by up to {n.get('below_raw_by', math.nan):.3f} (no timing avoided it)")  # fmt: skip
     limits = [f"{k.removesuffix('_frames').replace('_', ' ')} {n[k]:g}" for k in LIMIT_KEYS if k in n]
     if limits:
         parts.append("frames touched: " + ", ".join(limits))
@@ -326,7 +329,12 @@ def independent_summary(results: Sequence[SongResult]) -> str:
     judged = [r for r in results if r.finishing and r.finishing.get("judged_beat_sets")]
     if judged:
         kept = sum(bool(r.finishing.get("retimed")) for r in judged)
-        parts.append(f"beat sync kept the retime on {kept}/{len(judged)} dances (the model's timing on the others)")
+        below = sum(bool(r.finishing.get("below_raw_margins")) for r in judged)
+        parts.append(
+            f"beat sync kept the retime on {kept}/{len(judged)} dances (the model's timing on the others); "
+            f"finished below raw on a judged beat score: {below}/{len(judged)} (the floor cleanup's doing: no timing "
+            "avoided it)"
+        )
     return "; ".join(parts)
 
 
