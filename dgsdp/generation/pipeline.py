@@ -424,11 +424,18 @@ class DanceGenerator:
         means = self._genre_means(bank)
         if known:
             g = int(np.argmax(probs))
-            reading = TextReading(clean, "router", _ranked(names, probs), names[g], energy, True, closest, similarity)
+            excluded = tuple(names[i] for i in self.router().negated_genres(clean))
+            reading = TextReading(clean, "router", _ranked(names, probs), names[g], energy, True, closest, similarity,
+                                  excluded=excluded)  # fmt: skip
             return self._with_speed(means[g], reading, genre=g, quantile=speed_quantile(energy))
-        present = torch.tensor([i for i in range(len(names)) if bool((bank.genre_index == i).any())])
-        reading = TextReading(clean, "router", _ranked(names, probs), None, energy, False, closest, similarity)
-        return self._with_speed(means[present].mean(0), reading)
+        # no particular genre: the mean of the bank's genres but those the text negates, at the energy's pace
+        excluded = self.router().negated_genres(clean)
+        in_bank = [i for i in range(len(names)) if bool((bank.genre_index == i).any())]
+        present = [i for i in in_bank if i not in excluded] or in_bank
+        weights = torch.zeros(len(names)).index_fill_(0, torch.tensor(present), 1.0)
+        reading = TextReading(clean, "router", _ranked(names, probs), None, energy, False, closest, similarity,
+                              excluded=tuple(names[i] for i in excluded))  # fmt: skip
+        return self._with_speed(means[present].mean(0), reading, weights=weights, quantile=speed_quantile(energy))
 
     def _genre_means(self, bank: Any) -> torch.Tensor:
         """(n_genres, ds): each genre's mean style vector (zeros for a genre the bank lacks)."""
@@ -448,15 +455,15 @@ class DanceGenerator:
         weights: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, TextReading]:
         """The style vector with the speed channel a speed-conditioned model takes, and the reading with that speed:
-        a genre's training speed at ``quantile``, the ``weights``' blend of the genres' median speeds, or else the
-        training windows' median speed; other models: unchanged."""
+        a genre's training speed at ``quantile``, the ``weights``' blend of the genres' speeds at ``quantile``, or
+        else the training windows' median speed; other models: unchanged."""
         if not getattr(self.model, "speed_conditioning", False):
             return vector, reading
         model = self.model
         if genre is not None:
             speed = model.genre_speed(torch.tensor([genre]), quantile)[0]
         elif weights is not None:
-            medians = model.genre_speed(torch.arange(len(weights)), 0.5)
+            medians = model.genre_speed(torch.arange(len(weights)), quantile)
             speed = (weights.to(medians) @ medians) / weights.sum().clamp_min(1e-12)
         else:
             speed = model.speed_reference.float()

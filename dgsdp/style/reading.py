@@ -12,9 +12,15 @@ lists the style benchmark measures with):
   (``resources/style_attributes.yaml``) and on the descriptions themselves as neutral, reads how much faster or
   slower than usual the text asks to be danced: -1 to +1 (the mean reading of the slow and of the fast phrases is
   -1 and +1). A model conditioned on speed dances it at that quantile of its genre's training speeds.
-- **known**: a text less similar to every description (and every composed phrase) than each description is to its
-  nearest other description resembles nothing the model knows; it is danced in no particular genre, and the
-  reading says so.
+- **known**: a text less similar to every description than each description is to its nearest other description
+  resembles nothing the model knows; it is danced in no particular genre, and the reading says so. The threshold is
+  calibrated on the descriptions and applied to them alone: the short phrases composed for the energy resemble any
+  short text ("tango" was read as LA hip-hop through "a furious la-style hip-hop dance").
+- **negation**: a negation word ("not", "no", "never", "without", "anything but", "rather than", ...) negates the
+  words after it up to the next punctuation, "but" or "and". A genre those words name is excluded (its probability
+  0; "not krump" alone is danced in no particular genre but krump); the energy is read from the rest of the text,
+  and the negated words' energy, read composed with every genre's name, counts against it ("krump, not fast" and
+  "not fast at all" read slow, "anything but slow" fast).
 
 :class:`TextReading` is what a dance reports about how its style was read.
 """
@@ -40,6 +46,13 @@ GENRE_C = 30.0  # the genre classifier's inverse regularisation: the best of 3, 
 ENERGY_C = 1.0  # the energy classifier's
 SPEED_SPAN = 0.4  # energy +-1 asks for the genre's training speed at quantile 0.5 +- this (its 10th / 90th percentile)
 MIN_SENTENCE_WORDS = 3
+# a negation word, the longer phrases first, and what ends its scope (punctuation, "but", "and")
+NEGATION = re.compile(
+    r"\b(?:anything but|nothing like|rather than|instead of|not|no|never|without|nor|isn't|aren't|don't|doesn't|"
+    r"won't|can't)(?=\W|$)",
+    re.IGNORECASE,
+)
+_SCOPE_END = re.compile(r"[,.;:!?]|\b(?:but|and)\b", re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -47,7 +60,8 @@ class TextReading:
     """How a style text was read: ``how`` ("genre": a genre asked by name; "router"; "blend": similarity weights;
     "own": the text's own embedding), the genres it was read as with their weights (largest first), the genre danced
     (None: no one genre), the energy (-1 slow to +1 fast; 0: the genre's usual), whether it resembles the model's
-    descriptions (with the closest one and its similarity), and the speed asked (m/s; speed-conditioned models)."""
+    descriptions (with the closest one and its similarity), the speed asked (m/s; speed-conditioned models) and the
+    genres the text negates ("not krump")."""
 
     text: str
     how: str
@@ -58,10 +72,16 @@ class TextReading:
     closest: str | None = None
     similarity: float | None = None
     speed_m_s: float | None = None
+    excluded: tuple[str, ...] = ()
 
     def describe(self) -> str:
         """One line for the user."""
         speed = "" if self.speed_m_s is None else f", at {self.speed_m_s:.2f} m/s"
+        negated = " or ".join(self.excluded)
+        if negated and not self.known:
+            return f"style {self.text!r}: no genre asked, only not {negated}: danced in no particular genre{speed}"
+        if negated:
+            speed += f"; not {negated} (negated)"
         if self.how == "genre":
             return f"style {self.text!r}: the genre {self.genre}{speed}"
         if self.how == "own":
@@ -82,7 +102,7 @@ class TextReading:
         return {
             "text": self.text, "how": self.how, "weights": dict(self.weights), "genre": self.genre,
             "energy": self.energy, "known": self.known, "closest": self.closest, "similarity": self.similarity,
-            "speed_m_s": self.speed_m_s,
+            "speed_m_s": self.speed_m_s, "excluded": list(self.excluded),
         }  # fmt: skip
 
 
@@ -95,6 +115,23 @@ def sentences(text: str) -> list[str]:
     """The sentences of a description of several (each of at least MIN_SENTENCE_WORDS words), else []."""
     parts = [p.strip() for p in re.split(r"(?<=[.;!?])\s+", text) if len(p.split()) >= MIN_SENTENCE_WORDS]
     return parts if len(parts) > 1 else []
+
+
+def split_negation(text: str) -> tuple[str, list[str]]:
+    """``text`` without its negated phrases, and those phrases: a negation word negates the words after it up to
+    the next punctuation, "but" or "and" (``"house, not too fast"`` -> ``("house,", ["too fast"])``)."""
+    kept, negated, pos = [], [], 0
+    for match in NEGATION.finditer(text):
+        if match.start() < pos:
+            continue
+        kept.append(text[pos : match.start()])
+        end = _SCOPE_END.search(text, match.end())
+        stop = end.start() if end else len(text)
+        if text[match.end() : stop].strip():
+            negated.append(text[match.end() : stop].strip())
+        pos = stop
+    kept.append(text[pos:])
+    return " ".join(" ".join(kept).split()), negated
 
 
 def load_attributes(path: str | Path = ATTRIBUTES_FILE) -> dict[str, list[str]]:
@@ -134,6 +171,7 @@ class TextRouter:
         attributes = attributes or load_attributes()
         self.embed = embed
         self.n_genres = len(per_genre)
+        self.genre_names = [str(n).lower() for n in genre_names]
         # the examples: each description, then its sentences (a description and its sentences share a group)
         texts, labels, groups = [], [], []
         for genre, descriptions in enumerate(per_genre):
@@ -171,9 +209,6 @@ class TextRouter:
         x = np.concatenate([composed, self.examples])
         y = np.concatenate([np.asarray(classes), np.ones(len(self.examples), dtype=np.int64)])
         self.energy_model = LogisticRegression(C=ENERGY_C, max_iter=5000, class_weight="balanced").fit(x, y)
-        # what the reader knows: the descriptions and the genres' names composed with the attribute words
-        self.known_texts = [*texts, *phrases]
-        self.known_examples = np.concatenate([self.examples, composed])
         raw = self._raw_energy(composed)
         classes_arr = np.asarray(classes)
         self.energy_scale = (float(-raw[classes_arr == 0].mean()), float(raw[classes_arr == 2].mean()))
@@ -185,17 +220,44 @@ class TextRouter:
         order = list(self.energy_model.classes_)
         return p[:, order.index(2)] - p[:, order.index(0)]
 
+    def _energy(self, raw: float) -> float:
+        return float(np.clip(raw / self.energy_scale[0 if raw < 0 else 1], -1.0, 1.0))
+
+    def negated_genres(self, text: str) -> list[int]:
+        """The genres a negated phrase of ``text`` names ("not krump", "anything but house")."""
+        spans = split_negation(text)[1]
+        return [
+            g for g, name in enumerate(self.genre_names)
+            if any(re.search(rf"(?<!\w){re.escape(name)}(?!\w)", span, re.IGNORECASE) for span in spans)
+        ]  # fmt: skip
+
     def read(self, text: str) -> tuple[np.ndarray, float, bool, str, float]:
         """(genre probabilities (G,) over all the vocabulary's genres, energy in [-1, 1], known, the closest
-        description, its similarity) of one text."""
+        description, its similarity) of one text; a negated genre has probability 0 (module docstring)."""
         x = _unit(self.embed([text]))
+        sims = (self.examples @ x[0]).astype(np.float64)
+        best = int(sims.argmax())
+        known = bool(sims[best] >= self.known_similarity)
         probs = np.zeros(self.n_genres)
         probs[self.genre_model.classes_] = self.genre_model.predict_proba(x)[0]
-        raw = float(self._raw_energy(x)[0])
-        energy = float(np.clip(raw / self.energy_scale[0 if raw < 0 else 1], -1.0, 1.0))
-        sims = (self.known_examples @ x[0]).astype(np.float64)
-        best = int(sims.argmax())
-        return probs, energy, bool(sims[best] >= self.known_similarity), self.known_texts[best], float(sims[best])
+        energy = self._energy(float(self._raw_energy(x)[0]))
+        kept, negated = split_negation(text)
+        if negated:  # the genre from the whole text but the genres negated; the energy from what is not negated
+            if re.search(r"\w", kept):
+                energy = self._energy(float(self._raw_energy(_unit(self.embed([kept])))[0]))
+            else:  # nothing but negations: no genre asked, no energy of its own
+                known, energy = False, 0.0
+            for span in negated:  # each read composed with every genre's name, as the energy was fitted
+                composed = _unit(self.embed([f"{span} {name}" for name in self.genre_names]))
+                energy -= self._energy(float(self._raw_energy(composed).mean()))
+            energy = float(np.clip(energy, -1.0, 1.0))
+            excluded = self.negated_genres(text)
+            probs[excluded] = 0.0
+            if probs.sum() > 0:
+                probs /= probs.sum()
+            else:
+                known = False
+        return probs, energy, known, self.texts[best], float(sims[best])
 
 
 def speed_quantile(energy: float) -> float:
@@ -205,4 +267,6 @@ def speed_quantile(energy: float) -> float:
     return 0.5 + SPEED_SPAN * max(-1.0, min(1.0, energy))
 
 
-__all__ = ["ATTRIBUTES_FILE", "TextReading", "TextRouter", "load_attributes", "sentences", "speed_quantile"]
+__all__ = [
+    "ATTRIBUTES_FILE", "TextReading", "TextRouter", "load_attributes", "sentences", "speed_quantile", "split_negation"
+]  # fmt: skip

@@ -10,7 +10,15 @@ import numpy as np
 import pytest
 import torch
 
-from dgsdp.style.reading import SPEED_SPAN, TextReading, TextRouter, load_attributes, sentences, speed_quantile
+from dgsdp.style.reading import (
+    SPEED_SPAN,
+    TextReading,
+    TextRouter,
+    load_attributes,
+    sentences,
+    speed_quantile,
+    split_negation,
+)
 
 GENRES = ["break", "house", "ballet"]
 DESCRIPTIONS = [
@@ -72,6 +80,45 @@ def test_the_router_reads_a_genre_an_energy_and_whether_it_knows_the_text(router
     assert abs(router.read("house")[1]) < 0.5
 
 
+def test_known_is_judged_against_the_descriptions_it_was_calibrated_on(router):
+    """A text that shares words only with the phrases composed for the energy ("calm" of "calm break") resembles no
+    description: unknown (before, the threshold set on the descriptions was applied to those phrases too)."""
+    composed = torch.nn.functional.normalize(bag_of_words(["calm break"]), dim=-1)
+    text = torch.nn.functional.normalize(bag_of_words(["calm"]), dim=-1)
+    assert float(composed @ text.T) > router.known_similarity  # close to a composed phrase...
+    probs, energy, known, closest, similarity = router.read("calm")
+    assert not known and closest in router.texts and similarity < router.known_similarity  # ...but no description
+    assert router.read("calm house")[2] is False and router.read("shuffling feet that slide")[2]
+
+
+@pytest.mark.parametrize(
+    "text, kept, negated",
+    [("house, not too fast", "house,", ["too fast"]), ("not krump", "", ["krump"]),
+     ("anything but krump", "", ["krump"]), ("krump, not fast but smooth", "krump, but smooth", ["fast"]),
+     ("no krump, no house", ",", ["krump", "house"]), ("don't stop", "", ["stop"]),
+     ("a knot of notes", "a knot of notes", []), ("Nothing like krump and slow", "and slow", ["krump"])],
+)  # fmt: skip
+def test_split_negation(text, kept, negated):
+    assert split_negation(text) == (kept, negated)
+
+
+def test_negation_excludes_a_genre_and_turns_the_energy(router):
+    """ "not break" names break only to exclude it; a negated speed word counts against the text's energy."""
+    probs, energy, known, _, _ = router.read("not break")
+    assert probs[0] == 0.0 and probs.sum() == pytest.approx(1.0) and not known and energy == pytest.approx(0.0, abs=0.6)
+    assert router.negated_genres("anything but break, no house") == [0, 1] and router.negated_genres("break") == []
+    probs = router.read("graceful pointed toes, not house")[0]
+    assert probs[1] == 0.0 and probs.argmax() == 2
+    plain, negated = router.read("frantic house")[1], router.read("house, not frantic")[1]
+    assert plain > 0.5 and negated < -0.5
+    assert router.read("not lazy")[1] > 0.5 and not router.read("not lazy")[2]
+    described = TextReading("not krump", "router", (("House", 0.5),), None, -0.2, False, "x", 0.3, excluded=("krump",))
+    assert described.describe() == "style 'not krump': no genre asked, only not krump: danced in no particular genre"
+    known = TextReading("house, not krump", "router", (("House", 0.9),), "House", 0.0, True, "x", 0.6, 0.5, ("krump",))
+    assert known.describe().endswith("energy +0.00 (its genre's usual pace), at 0.50 m/s; not krump (negated)")
+    assert described.to_dict()["excluded"] == ["krump"]
+
+
 def test_energy_asks_for_a_quantile_of_the_genre_speeds():
     assert speed_quantile(0.0) == 0.5 and speed_quantile(1.0) == pytest.approx(0.5 + SPEED_SPAN)
     assert speed_quantile(-3.0) == pytest.approx(0.5 - SPEED_SPAN) and speed_quantile(float("nan")) == 0.5
@@ -122,3 +169,15 @@ def test_minilm_reads_the_shipped_descriptions_way():
         assert reader.read(f"slow {name}")[1] < reader.read(f"fast {name}")[1], name
     assert not reader.read("sitting still on a chair")[2]
     assert np.isclose(reader.read("krump")[0].sum(), 1.0)
+    # a dance it was never told of is unknown (its closest texts were composed phrases: "tango" read as LA hip-hop)
+    assert not reader.read("tango")[2] and not reader.read("salsa")[2]
+    # negations read the right way round
+    krump = names.index("krump")
+    for text in ("not krump", "anything but krump"):
+        probs, _, known, _, _ = reader.read(text)
+        assert probs[krump] == 0.0 and not known, text
+    probs, energy, known, _, _ = reader.read("not fast at all")
+    assert energy < -0.5 and not known
+    house = names.index("house")
+    probs, energy, known, _, _ = reader.read("house, not fast")
+    assert probs.argmax() == house and known and energy < reader.read("house")[1] - 0.5
