@@ -129,8 +129,15 @@ class RunSpec:
         return build(self.loss, "loss", where="loss", source=source)
 
     def build_optimizer(self, params: Any) -> Any:
-        factory = build(self.optimizer, "optimizer", where="optimizer")
+        node = {k: v for k, v in self.optimizer.items() if k != "schedule"}  # the learning rate's schedule: apart
+        factory = build(node, "optimizer", where="optimizer")
         return factory(params)
+
+    def lr_schedule(self) -> Any:
+        """The run's learning-rate schedule (``optimizer.schedule``; constant without one)."""
+        from dgsdp.training.lr_schedule import LRSchedule
+
+        return LRSchedule.from_config(self.optimizer.get("schedule"))
 
     def build_audio_encoder(self, source: Source = "config", *, device: str | None = None) -> Any:
         """The run's audio encoder, or None for a model without music."""

@@ -3,6 +3,7 @@ bank) with the loss, the optimiser, the EMA update and the checkpoint record add
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -38,6 +39,21 @@ class DanceDiffusion(TrainedModel, L.LightningModule):
         self.save_hyperparameters(plain(self.spec.to_dict()))
         self.loss_weights = self.spec.build_loss(source)
         self._ema_first: bool | None = None  # whether the next EMA update is its first (read once from the EMA)
+        self._train_seconds_before = 0.0  # training time of the run before a resume
+        self._train_started: float | None = None
+
+    def train_seconds(self) -> float:
+        """Wall-clock seconds this run has trained so far (validation and checkpoints included; a resumed run adds its
+        earlier time), which checkpoints record as ``train_seconds``: what a quality curve is drawn against."""
+        now = 0.0 if self._train_started is None else time.perf_counter() - self._train_started
+        return self._train_seconds_before + now
+
+    def on_train_start(self) -> None:
+        self._train_started = time.perf_counter()
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        seconds = checkpoint.get("train_seconds")
+        self._train_seconds_before = float(seconds) if isinstance(seconds, int | float) and seconds >= 0 else 0.0
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint["hyper_parameters"] = plain(dict(self.hparams))
@@ -48,6 +64,7 @@ class DanceDiffusion(TrainedModel, L.LightningModule):
             if isinstance(version, str | int):
                 run_ids[type(logger).__name__] = str(version)
         checkpoint["logger_run_ids"] = run_ids
+        checkpoint["train_seconds"] = self.train_seconds()
 
     def _noised(
         self, batch: dict[str, Any], train: bool, generator=None
@@ -117,8 +134,16 @@ class DanceDiffusion(TrainedModel, L.LightningModule):
         terms = self._loss(self.ema.module, batch, train=False, generator=gen)
         self.log_dict({f"val/{k}": v for k, v in terms.items()}, batch_size=batch["motion"].shape[0])
 
-    def configure_optimizers(self) -> torch.optim.Optimizer:
-        return self.spec.build_optimizer(self.denoiser.parameters())
+    def configure_optimizers(self) -> Any:
+        """The run's optimiser, with a per-step learning-rate scheduler when ``optimizer.schedule`` asks for one
+        (:mod:`dgsdp.training.lr_schedule`; it spans ``trainer.max_steps``)."""
+        optimizer = self.spec.build_optimizer(self.denoiser.parameters())
+        schedule = self.spec.lr_schedule()
+        if schedule.constant:
+            return optimizer
+        total = self.trainer.max_steps if self._trainer is not None else None
+        scheduler = schedule.scheduler(optimizer, total)
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step", "frequency": 1}}
 
 
 def wandb_run_id(checkpoint: Mapping[str, Any]) -> str | None:
