@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import re
 import sys
 from collections.abc import Callable, Sequence
@@ -213,7 +214,8 @@ def log_to_wandb(points: Sequence[dict[str, Any]], png: Path | None, project: st
     """The curves' PNG and every point as a table in one wandb run named ``curves``."""
     import wandb
 
-    run = wandb.init(project=project, name="curves", job_type="curves")
+    # the folder read now: wandb keeps the settings of an earlier run in this process otherwise
+    run = wandb.init(project=project, name="curves", job_type="curves", dir=os.environ.get("WANDB_DIR") or None)
     try:
         keys = sorted({k for p in points for k in p["figures"]})
         table = wandb.Table(columns=["recipe", "seed_index", "step", "minutes", *keys])

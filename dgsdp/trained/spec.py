@@ -133,12 +133,6 @@ class RunSpec:
         factory = build(node, "optimizer", where="optimizer")
         return factory(params)
 
-    def lr_schedule(self) -> Any:
-        """The run's learning-rate schedule (``optimizer.schedule``; constant without one)."""
-        from dgsdp.training.lr_schedule import LRSchedule
-
-        return LRSchedule.from_config(self.optimizer.get("schedule"))
-
     def build_audio_encoder(self, source: Source = "config", *, device: str | None = None) -> Any:
         """The run's audio encoder, or None for a model without music."""
         if not self.conditioning.audio_dim:

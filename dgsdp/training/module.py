@@ -14,6 +14,7 @@ from dgsdp.diffusion import dance_loss
 from dgsdp.registry import Source
 from dgsdp.trained.model import CHECKPOINT_FORMAT, TrainedModel, plain
 from dgsdp.trained.spec import RunSpec
+from dgsdp.training.lr_schedule import LRSchedule
 from dgsdp.training.optim import ema_steps, ema_update
 
 
@@ -138,7 +139,7 @@ class DanceDiffusion(TrainedModel, L.LightningModule):
         """The run's optimiser, with a per-step learning-rate scheduler when ``optimizer.schedule`` asks for one
         (:mod:`dgsdp.training.lr_schedule`; it spans ``trainer.max_steps``)."""
         optimizer = self.spec.build_optimizer(self.denoiser.parameters())
-        schedule = self.spec.lr_schedule()
+        schedule = LRSchedule.from_config(self.spec.optimizer.get("schedule"))
         if schedule.constant:
             return optimizer
         total = self.trainer.max_steps if self._trainer is not None else None
