@@ -28,6 +28,9 @@ DESCRIPTIONS = [
 ]
 ATTRIBUTES = {"slow": ["calm", "lazy"], "fast": ["frantic", "rapid"], "templates": ["{word} {genre}"],
               "neutral_templates": ["{genre}"]}  # fmt: skip
+MOVEMENT = {"movement_templates": ["{word} {genre}"],
+            "movement": {"level": {"lower": ["crouched", "squat"], "higher": ["tall", "upright"]},
+                         "turning": {"lower": ["ahead", "front"], "higher": ["spinning", "twirling"]}}}  # fmt: skip
 
 
 def words(text: str) -> list[str]:
@@ -35,7 +38,8 @@ def words(text: str) -> list[str]:
 
 
 VOCAB = sorted({w for ds in DESCRIPTIONS for d in ds for w in words(d)} | set(GENRES) | {"calm", "lazy", "frantic",
-               "rapid", "sitting", "chair"})  # fmt: skip
+               "rapid", "sitting", "chair", "crouched", "squat", "tall", "upright", "ahead", "front", "spinning",
+               "twirling"})  # fmt: skip
 
 
 def bag_of_words(texts: list[str]) -> torch.Tensor:
@@ -51,6 +55,11 @@ def bag_of_words(texts: list[str]) -> torch.Tensor:
 @pytest.fixture(scope="module")
 def router() -> TextRouter:
     return TextRouter(DESCRIPTIONS, bag_of_words, GENRES, ATTRIBUTES)
+
+
+@pytest.fixture(scope="module")
+def mover() -> TextRouter:
+    return TextRouter(DESCRIPTIONS, bag_of_words, GENRES, {**ATTRIBUTES, **MOVEMENT})
 
 
 def test_sentences_of_a_description_of_several():
@@ -119,6 +128,43 @@ def test_negation_excludes_a_genre_and_turns_the_energy(router):
     assert described.to_dict()["excluded"] == ["krump"]
 
 
+def test_the_router_reads_movement_attributes_beside_the_energy(router, mover):
+    """Each attribute's words read at their end around a genre (the calibration: the mean of each end's phrases is
+    -1 and +1), the genre's name alone near its usual; a router given no movement words reads none."""
+    assert router.read_attributes("tall house") == {}
+    assert set(mover.read_attributes("house")) == {"level", "turning"}
+    assert (
+        mover.read_attributes("crouched house")["level"] < -0.5 and mover.read_attributes("tall house")["level"] > 0.5
+    )
+    assert (
+        mover.read_attributes("twirling ballet")["turning"] > 0.5 and abs(mover.read_attributes("house")["level"]) < 0.5
+    )
+    assert abs(mover.read_attributes("tall house")["turning"]) < 0.5  # one attribute's words leave the others alone
+    # the energy is read as it was without movement words
+    for text in ("frantic house", "lazy break", "house, not frantic"):
+        assert mover.read(text)[1] == pytest.approx(router.read(text)[1])
+
+
+def test_negated_movement_words_count_against_their_attribute(mover):
+    """ "not tall" and "without spinning" read the other way: the negated words, composed with every genre's name,
+    count against the rest of the text's score (as the energy's do)."""
+    assert mover.read_attributes("house, not tall")["level"] < -0.5
+    assert mover.read_attributes("ballet without spinning")["turning"] < -0.5
+    assert mover.read_attributes("anything but crouched")["level"] > 0.5
+    assert mover.read_attributes("not krump")["level"] == pytest.approx(0.0, abs=0.3)  # no level word in it
+
+
+def test_a_reading_describes_the_movement_it_read():
+    reading = TextReading("tall house", "router", (("House", 0.9),), "House", 0.0, True, "x", 0.7, 0.5,
+                          attributes=(("level", 0.8), ("arms", 0.01), ("travel", -0.6), ("turning", 0.0)),
+                          movement=(("level", 1.02),))  # fmt: skip
+    assert reading.describe() == (
+        "style 'tall house': read as House (House 0.90); energy +0.00 (its genre's usual pace), at 0.50 m/s; "
+        "level higher (+0.80), arms usual, travel less (-0.60), turning usual"
+    )
+    assert reading.to_dict()["attributes"]["travel"] == -0.6 and reading.to_dict()["movement"] == {"level": 1.02}
+
+
 def test_energy_asks_for_a_quantile_of_the_genre_speeds():
     assert speed_quantile(0.0) == 0.5 and speed_quantile(1.0) == pytest.approx(0.5 + SPEED_SPAN)
     assert speed_quantile(-3.0) == pytest.approx(0.5 - SPEED_SPAN) and speed_quantile(float("nan")) == 0.5
@@ -151,6 +197,25 @@ def test_the_shipped_attribute_words_leave_out_the_benchmarks_words():
     }
 
 
+def test_the_shipped_movement_words_leave_out_the_benchmarks_wordings():
+    """No movement word of the reader occurs in the style benchmark's held-out attribute wordings (which measure how
+    the reading carries over to words it never saw), and none carries a negation (it would be read negated)."""
+    import yaml
+
+    from dgsdp.resources import RESOURCES_DIR
+
+    attributes = load_attributes()
+    assert set(attributes["movement"]) == {"level", "arms", "travel", "turning"}
+    heldout_file = RESOURCES_DIR / "style_heldout" / "attributes" / "aistpp.yaml"
+    heldout = yaml.safe_load(heldout_file.read_text(encoding="utf-8"))
+    wordings = [t.lower() for pairs in heldout.values() for pair in pairs for t in pair]
+    for name, ends in attributes["movement"].items():
+        for word in ends["lower"] + ends["higher"]:
+            pattern = rf"(?<!\w){re.escape(word.lower())}(?!\w)"
+            assert not [t for t in wordings if re.search(pattern, t)], (name, word)
+            assert split_negation(word) == (word, []), (name, word)
+
+
 @pytest.mark.timeout(300)
 def test_minilm_reads_the_shipped_descriptions_way():
     """The shipped reader (MiniLM, the augmented descriptions): genre names go to their genre, a slower word reads
@@ -162,7 +227,9 @@ def test_minilm_reads_the_shipped_descriptions_way():
 
     per_genre = load_prompts(RESOURCES_DIR / "style_prompts" / "aistpp_augmented.yaml", AISTPP_GENRES)
     names = [n.lower() for n in AISTPP_GENRES.names]
-    reader = TextRouter(per_genre, MiniLMTextEncoder().encode, names)
+    shipped = load_attributes()
+    genre_and_energy = {k: shipped[k] for k in ("slow", "fast", "templates", "neutral_templates")}
+    reader = TextRouter(per_genre, MiniLMTextEncoder().encode, names, genre_and_energy)  # movement: the slow test
     for g, name in enumerate(names):
         probs, energy, known, _, _ = reader.read(f"{name} dance")
         assert probs.argmax() == g and known, name
@@ -181,3 +248,27 @@ def test_minilm_reads_the_shipped_descriptions_way():
     house = names.index("house")
     probs, energy, known, _, _ = reader.read("house, not fast")
     assert probs.argmax() == house and known and energy < reader.read("house")[1] - 0.5
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_minilm_reads_the_shipped_movement_words_way():
+    """The shipped reader with its movement words (MiniLM, the augmented descriptions): for every genre, a phrase
+    with a word of each attribute's higher end reads higher than one with a word of its lower end (in a wording the
+    reader was not fitted on), the genre's name alone reads near its usual, and a negated word reads the other way."""
+    from dgsdp.resources import RESOURCES_DIR
+    from dgsdp.style import MiniLMTextEncoder
+    from dgsdp.style.embeddings import load_prompts
+    from dgsdp.style.vocab import AISTPP_GENRES
+
+    per_genre = load_prompts(RESOURCES_DIR / "style_prompts" / "aistpp_augmented.yaml", AISTPP_GENRES)
+    names = [n.lower() for n in AISTPP_GENRES.names]
+    reader = TextRouter(per_genre, MiniLMTextEncoder().encode, names)
+    words = load_attributes()["movement"]
+    for name in names:
+        plain = reader.read_attributes(f"{name} dance")
+        for attribute, ends in words.items():
+            lower = reader.read_attributes(f"I want {name} {ends['lower'][0]}")[attribute]
+            higher = reader.read_attributes(f"I want {name} {ends['higher'][0]}")[attribute]
+            assert lower < plain[attribute] < higher, (name, attribute, lower, plain[attribute], higher)
+    assert reader.read_attributes("house without spinning")["turning"] < reader.read_attributes("house")["turning"]
