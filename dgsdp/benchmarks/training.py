@@ -192,7 +192,7 @@ def bench_data(root: str, device: torch.device, batch: int, epochs: int = 2) -> 
     if not (Path(root) / "motions").is_dir():
         raise DataError(f"--data {root}: no dataset there; run the quick start (or 'python -m dgsdp.data.synthetic')")
     dm = DanceDataModule(root, str(Path(root).parent / "cache"), audio_encoder=LibrosaEncoder(rhythm_only=True),
-                         batch_size=batch, progress=False, window_speeds=True)  # fmt: skip
+                         batch_size=batch, progress=False, movement_channels=("speed",))  # fmt: skip
     dm.setup("fit")
     dataset = dm.datasets["train"]
     host = ResumableLoader(dataset, batch_size=batch, seed=0)

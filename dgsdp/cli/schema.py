@@ -5,7 +5,7 @@ Each group's option files start with ``defaults: [schema, _self_]``."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from hydra.core.config_store import ConfigStore
 
@@ -35,6 +35,7 @@ class DenoiserConfig:
     guidance_inputs: int = 0
     gradient_checkpointing: bool = False
     speed_conditioning: bool = False
+    movement_channels: list[str] = field(default_factory=list)
     ema_decay: float = 0.9999
 
 

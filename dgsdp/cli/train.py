@@ -23,6 +23,7 @@ from dgsdp.cli.runtime import run_main
 from dgsdp.data.datamodule import check_tempo_augment
 from dgsdp.errors import ConfigError
 from dgsdp.registry import build
+from dgsdp.style.movement import movement_channels
 from dgsdp.trained import check_weights, read_checkpoint
 from dgsdp.trained.spec import RunSpec
 from dgsdp.training.distill import (
@@ -139,9 +140,10 @@ def train(cfg: DictConfig) -> dict[str, Any]:
 
     audio_encoder = audio_encoder_from_config(cfg)
     style_embedder = style_embedder_from_config(cfg)
-    # a model conditioned on speed reads each training window's mean joint speed
-    speed = bool((cfg.get("model") or {}).get("speed_conditioning", False))
-    datamodule = instantiate(cfg.data, audio_encoder=audio_encoder, window_speeds=speed)
+    # a model conditioned on movement channels (its speed, level, ...) reads each training window's values
+    model_cfg = cfg.get("model") or {}
+    channels = movement_channels(model_cfg.get("movement_channels"), bool(model_cfg.get("speed_conditioning", False)))
+    datamodule = instantiate(cfg.data, audio_encoder=audio_encoder, movement_channels=channels)
     datamodule.prepare_data()
     datamodule.setup("fit")
     bank = style_embedder.bank() if style_embedder is not None and style_embedder.dim else None
@@ -170,8 +172,10 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         model.set_floor_height(datamodule.floor_height)
     model.set_tempo_range(getattr(datamodule, "tempo_range_bpm", None))  # the songs' tempi (sampling.tempo_fold)
     model.set_style_bank(bank)
-    if speed:  # the training windows' speeds: what generation asks each genre for (docs/style.md)
-        model.set_speed_statistics(datamodule.speed_quantiles, datamodule.speed_reference)
+    if channels:  # the training windows' movement values: what generation asks each genre for (docs/style.md)
+        model.set_movement_statistics(
+            datamodule.movement_quantiles, datamodule.movement_reference, datamodule.movement_spread
+        )
     n_params = sum(p.numel() for p in model.denoiser.parameters())
     log.info("denoiser: %.2fM parameters", n_params / 1e6)
 

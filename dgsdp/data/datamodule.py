@@ -28,7 +28,8 @@ from dgsdp.audio.tempo import training_tempo_range
 from dgsdp.data.aistpp import check_root, load_motion_pkl, music_path, parse_name, process_motion, read_split
 from dgsdp.data.device import AUTO_LIMIT_BYTES, DeviceLoader, DeviceWindows, check_on_device, host_only_reason
 from dgsdp.errors import ConfigError, DataError, DgsdpError
-from dgsdp.metrics.speed import SPEED_QUANTILES, frame_speeds
+from dgsdp.metrics.attributes import RATE_MEASURES, movement_series
+from dgsdp.metrics.speed import SPEED_QUANTILES
 from dgsdp.motion import MinMaxNormalizer, Skeleton, measure_floor_height, skeleton_from_config
 from dgsdp.motion.representation import CONTACT_CHANNELS
 from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
@@ -58,7 +59,9 @@ class Sequence:
     music_id: str
     motion: np.ndarray
     audio: np.ndarray | None  # (T_audio, D) features at 30 FPS, or (samples,) waveform, or None
-    speed: np.ndarray | None = None  # (T-1,) mean joint speed (m/s) of each step; with ``window_speeds``
+    # each movement channel's series (dgsdp.metrics.attributes: (T-1,) per step or (T,) per frame), in the model's
+    # channels' order; with ``movement_channels``
+    movement: dict[str, np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -256,8 +259,8 @@ class WindowDataset(Dataset):
             "name": seq.name,
             "start": start,
         }
-        if seq.speed is not None:  # the window's mean joint speed (model.speed_conditioning)
-            item["speed"] = torch.tensor(self.window_speed(seq, start, rate), dtype=torch.float32)
+        if seq.movement is not None:  # the window's movement values (model.movement_channels)
+            item["movement"] = torch.tensor(self.window_movement(seq, start, rate), dtype=torch.float32)
         if audio is not None:
             item["audio"] = audio
         elif seq.audio is not None:
@@ -265,11 +268,18 @@ class WindowDataset(Dataset):
             item["audio"] = torch.from_numpy(np.array(self._audio_window(seq.audio, start), dtype=np.float32))
         return item
 
-    def window_speed(self, seq: Sequence, start: int, rate: float = 1.0) -> float:
-        """The mean joint speed (m/s) of the window at ``start`` played at ``rate`` (its source span's speed, ``rate``
-        times faster)."""
-        span = max(1, math.ceil((self.length - 1) * rate))
-        return float(seq.speed[start : start + span].mean()) * rate
+    def window_movement(self, seq: Sequence, start: int, rate: float = 1.0) -> list[float]:
+        """The movement values of the window at ``start`` played at ``rate``, one per channel of ``seq.movement``:
+        the mean of each series over the window's source span, the rates (speed, travel, turning) ``rate`` times
+        faster."""
+        steps = max(1, math.ceil((self.length - 1) * rate))
+        out = []
+        for name, series in seq.movement.items():
+            if name in RATE_MEASURES:
+                out.append(float(series[start : start + steps].mean()) * rate)
+            else:
+                out.append(float(series[start : start + steps + 1].mean()))
+        return out
 
     def _stretched(self, seq: Sequence, start: int) -> tuple[int, torch.Tensor, torch.Tensor, float]:
         """The window at ``start`` played at a random tempo: ``rate`` in ``tempo_range`` drawn log-uniformly from
@@ -309,32 +319,41 @@ class WindowDataset(Dataset):
         return start, motion_t, features_t, rate
 
 
-def add_speeds(sequences: list[Sequence], skeleton: Skeleton, fps: int) -> None:
-    """Give each sequence (that has none yet) the mean joint speed of each step between its frames, (T-1,) m/s,
-    measured on its joints in SMPL's 24-joint layout (as the style benchmark measures a dance's speed)."""
-    from dgsdp.motion import pose_to_joints, smpl24_layout
+def add_movement(
+    sequences: list[Sequence], skeleton: Skeleton, fps: int, channels: tuple[str, ...], floor_m: float = 0.0
+) -> None:
+    """Give each sequence (that has none yet) the series of each movement channel (:mod:`dgsdp.metrics.attributes`),
+    measured on its joints: the speed as the style benchmark measures it (SMPL's 24-joint layout), the level above
+    the training data's floor ``floor_m``."""
+    from dgsdp.motion import pose_to_joints
 
-    layout = smpl24_layout(skeleton)
     for seq in sequences:
-        if seq.speed is None and len(seq.motion) >= 2:
-            joints = pose_to_joints(torch.from_numpy(np.asarray(seq.motion, dtype=np.float32)), skeleton)
-            seq.speed = frame_speeds(joints.numpy()[:, layout], fps).astype(np.float32)
+        if seq.movement is None and len(seq.motion) >= 2:
+            joints = pose_to_joints(torch.from_numpy(np.asarray(seq.motion, dtype=np.float32)), skeleton).numpy()
+            series = movement_series(joints, skeleton, fps, floor_m, channels)
+            seq.movement = {name: values.astype(np.float32) for name, values in series.items()}
 
 
-def speed_quantiles(dataset: WindowDataset, n_genres: int) -> tuple[np.ndarray, float]:
-    """The quantiles 0, 0.1, ..., 1 of each genre's training windows' mean joint speeds (m/s, at their own tempo),
-    (n_genres, SPEED_QUANTILES) with NaN for a genre without windows, and the median of all the windows' speeds."""
-    by_genre: dict[int, list[float]] = {}
+def movement_statistics(dataset: WindowDataset, n_genres: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Of each movement channel of the training windows (at their own tempo), in the sequences' channels' order:
+    the quantiles 0, 0.1, ..., 1 of each genre's windows, (C, n_genres, SPEED_QUANTILES) with NaN for a genre
+    without windows; the median of all windows (C,); and their 10th-to-90th percentile spread (C,)."""
+    by_genre: dict[int, list[list[float]]] = {}
+    channels = 0
     for seq_i, start in dataset.index:
         seq = dataset.sequences[seq_i]
-        by_genre.setdefault(seq.genre_index, []).append(dataset.window_speed(seq, start))
-    out = np.full((n_genres, SPEED_QUANTILES), np.nan, dtype=np.float32)
+        by_genre.setdefault(seq.genre_index, []).append(dataset.window_movement(seq, start))
+        channels = len(seq.movement)
+    out = np.full((channels, n_genres, SPEED_QUANTILES), np.nan, dtype=np.float32)
     levels = np.linspace(0.0, 1.0, SPEED_QUANTILES)
-    for genre, speeds in by_genre.items():
+    for genre, values in by_genre.items():
         if 0 <= genre < n_genres:
-            out[genre] = np.quantile(np.asarray(speeds, dtype=np.float64), levels)
-    every = [v for speeds in by_genre.values() for v in speeds]
-    return out, float(np.median(every)) if every else math.nan
+            out[:, genre] = np.quantile(np.asarray(values, dtype=np.float64), levels, axis=0).T
+    every = np.asarray([v for values in by_genre.values() for v in values], dtype=np.float64).reshape(-1, channels)
+    if not len(every):
+        return out, np.full(channels, math.nan), np.full(channels, math.nan)
+    q10, q90 = np.quantile(every, [0.1, 0.9], axis=0)
+    return out, np.median(every, axis=0), q90 - q10
 
 
 def distributed_rank_world() -> tuple[int, int]:
@@ -486,18 +505,19 @@ class DanceDataModule(L.LightningDataModule):
         tempo_augment: tuple[float, float] | None = None,
         skeleton: str = "smpl24",
         smplx_file: str | None = None,
-        window_speeds: bool = False,
+        movement_channels: tuple[str, ...] | list[str] = (),
         on_device: str | bool = "auto",
     ) -> None:
         super().__init__()
         self.on_device = check_on_device(on_device)
         self._device_windows: dict[str, Any] = {}  # DeviceWindows by split name, built by the first loader
         self.skeleton = skeleton_from_config(skeleton, smplx_file, option="data.smplx_file")
-        # each window's mean joint speed in its batch, for a model conditioned on it (train.py sets this when
-        # model.speed_conditioning is on); the training windows' speeds per genre are measured in setup()
-        self.window_speeds = bool(window_speeds)
-        self.speed_quantiles: np.ndarray | None = None  # (genres, SPEED_QUANTILES) m/s, in setup()
-        self.speed_reference: float | None = None  # the median window's speed (m/s), in setup()
+        # each window's movement values in its batch, for a model conditioned on them (train.py passes the model's
+        # channels, dgsdp.style.movement); the training windows' values per genre are measured in setup()
+        self.movement_channels = tuple(movement_channels)
+        self.movement_quantiles: np.ndarray | None = None  # (C, genres, SPEED_QUANTILES), in setup()
+        self.movement_reference: np.ndarray | None = None  # (C,) the median window's values, in setup()
+        self.movement_spread: np.ndarray | None = None  # (C,) their 10th-to-90th percentile spread, in setup()
         if self.skeleton.name not in self.skeletons:
             raise ConfigError(
                 f"data.skeleton={skeleton}: {type(self).__name__} reads {' or '.join(self.skeletons)} motion "
@@ -604,9 +624,9 @@ class DanceDataModule(L.LightningDataModule):
             log.info("floor height of the training motions: %.3f m", self.floor_height)
         if self.tempo_range_bpm is None:
             self.tempo_range_bpm = training_tempo_range([s.music_id for s in train], self.tempo_augment)
-        if self.window_speeds:
+        if self.movement_channels:
             for name in ("train", "val", "test"):
-                add_speeds(self.sequences(name), self.skeleton, self.fps)
+                add_movement(self.sequences(name), self.skeleton, self.fps, self.movement_channels, self.floor_height)
         wanted = {
             "fit": ("train", "val"),
             "validate": ("val",),
@@ -638,8 +658,9 @@ class DanceDataModule(L.LightningDataModule):
                     f"{self.length / self.fps:.1f} s; use shorter windows (data.window_seconds)"
                 )
             self.datasets[name] = ds
-            if name == "train" and self.window_speeds and self.speed_quantiles is None:
-                self.speed_quantiles, self.speed_reference = speed_quantiles(ds, len(self.vocab))
+            if name == "train" and self.movement_channels and self.movement_quantiles is None:
+                stats = movement_statistics(ds, len(self.vocab))
+                self.movement_quantiles, self.movement_reference, self.movement_spread = stats
 
     def _windows_device(self, name: str) -> torch.device | None:
         """The device whose memory holds split ``name``'s windows (``on_device``), or None for the host loader."""

@@ -95,10 +95,10 @@ class DeviceWindows:
         self.rows = torch.tensor([offsets[i] + s for i, s in index], dtype=torch.int64, device=self.device)
         self.genre = torch.tensor([dataset.sequences[i].genre_index for i, _ in index], device=self.device)
         self.start = torch.tensor([s for _, s in index], device=self.device)
-        self.speed = None
-        if all(dataset.sequences[i].speed is not None for i in windows):
-            speeds = [dataset.window_speed(dataset.sequences[i], s) for i, s in index]
-            self.speed = torch.tensor(speeds, dtype=torch.float32, device=self.device)
+        self.movement = None  # (N, C) each window's movement values (model.movement_channels)
+        if all(dataset.sequences[i].movement is not None for i in windows):
+            values = [dataset.window_movement(dataset.sequences[i], s) for i, s in index]
+            self.movement = torch.tensor(values, dtype=torch.float32, device=self.device)
         self.names = [dataset.sequences[i].name for i, _ in index]
         self.music_ids = [dataset.sequences[i].music_id for i, _ in index]
         self.frames = torch.arange(self.length, device=self.device)
@@ -109,7 +109,7 @@ class DeviceWindows:
     @property
     def nbytes(self) -> int:
         """The bytes the store holds on its device."""
-        tensors = [self.motion, self.audio, self.rows, self.genre, self.start, self.speed, self.frames]
+        tensors = [self.motion, self.audio, self.rows, self.genre, self.start, self.movement, self.frames]
         return sum(t.numel() * t.element_size() for t in tensors if t is not None)
 
     def batch(self, items: list[int]) -> dict[str, Any]:
@@ -123,8 +123,8 @@ class DeviceWindows:
             "name": [self.names[i] for i in items],
             "start": self.start[pick],
         }
-        if self.speed is not None:
-            batch["speed"] = self.speed[pick]
+        if self.movement is not None:
+            batch["movement"] = self.movement[pick]
         if self.audio is not None:
             batch["audio"] = self.audio[frames]
         return batch

@@ -395,7 +395,7 @@ class DanceGenerator:
 
     def embed_style(self, text: str) -> torch.Tensor:
         """Style vector (ds,) of a genre (code or name, from the checkpoint's bank) or free text (read as
-        :attr:`text_choice` says); (ds + 1,) with the speed channel for a speed-conditioned model."""
+        :attr:`text_choice` says); (ds + C,) with the movement channels of a model conditioned on them."""
         return self.read_style(text)[0]
 
     def read_style(self, text: str) -> tuple[torch.Tensor, TextReading]:
@@ -406,11 +406,11 @@ class DanceGenerator:
         if bank is not None and text in embedder.vocab:
             g = embedder.vocab.index(text)
             vector = self._genre_means(bank)[g]
-            return self._with_speed(vector, TextReading(text, "genre", genre=names[g]), genre=g)
+            return self._with_movement(vector, TextReading(text, "genre", genre=names[g]), genre=g)
         vector = embedder.embed_text(text).float().cpu()  # checks the text (one-hot models take genres only)
         how = self.text_choice.how
         if bank is None or len(bank) < 2 or embedder.kind != "prompt" or how == TEXT_READING_OFF:
-            return self._with_speed(vector, TextReading(text, "own"))
+            return self._with_movement(vector, TextReading(text, "own"))
         clean = " ".join(split_free_text(text)[0].split())
         if how == "blend":
             keys, values = self._text_reading(embedder, bank)
@@ -419,23 +419,24 @@ class DanceGenerator:
             genres = self._reading_genres(embedder, bank)
             per_genre = torch.zeros(len(names)).index_add_(0, genres, weights)
             reading = TextReading(clean, "blend", weights=_ranked(names, per_genre.numpy()))
-            return self._with_speed(vector, reading, weights=per_genre)
+            return self._with_movement(vector, reading, weights=per_genre)
         probs, energy, known, closest, similarity = self.router().read(clean)
+        attributes = tuple(self.router().read_attributes(clean).items())
         means = self._genre_means(bank)
         if known:
             g = int(np.argmax(probs))
             excluded = tuple(names[i] for i in self.router().negated_genres(clean))
             reading = TextReading(clean, "router", _ranked(names, probs), names[g], energy, True, closest, similarity,
-                                  excluded=excluded)  # fmt: skip
-            return self._with_speed(means[g], reading, genre=g, quantile=speed_quantile(energy))
+                                  excluded=excluded, attributes=attributes)  # fmt: skip
+            return self._with_movement(means[g], reading, genre=g)
         # no particular genre: the mean of the bank's genres but those the text negates, at the energy's pace
         excluded = self.router().negated_genres(clean)
         in_bank = [i for i in range(len(names)) if bool((bank.genre_index == i).any())]
         present = [i for i in in_bank if i not in excluded] or in_bank
         weights = torch.zeros(len(names)).index_fill_(0, torch.tensor(present), 1.0)
         reading = TextReading(clean, "router", _ranked(names, probs), None, energy, False, closest, similarity,
-                              excluded=tuple(names[i] for i in excluded))  # fmt: skip
-        return self._with_speed(means[present].mean(0), reading, weights=weights, quantile=speed_quantile(energy))
+                              excluded=tuple(names[i] for i in excluded), attributes=attributes)  # fmt: skip
+        return self._with_movement(means[present].mean(0), reading, weights=weights)
 
     def _genre_means(self, bank: Any) -> torch.Tensor:
         """(n_genres, ds): each genre's mean style vector (zeros for a genre the bank lacks)."""
@@ -445,30 +446,37 @@ class DanceGenerator:
                 out[g] = bank.mean_for(torch.tensor([g], device=bank.vectors.device))[0].float().cpu()
         return out
 
-    def _with_speed(
+    def _with_movement(
         self,
         vector: torch.Tensor,
         reading: TextReading,
         *,
         genre: int | None = None,
-        quantile: float = 0.5,
         weights: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, TextReading]:
-        """The style vector with the speed channel a speed-conditioned model takes, and the reading with that speed:
-        a genre's training speed at ``quantile``, the ``weights``' blend of the genres' speeds at ``quantile``, or
-        else the training windows' median speed; other models: unchanged."""
-        if not getattr(self.model, "speed_conditioning", False):
-            return vector, reading
+        """The style vector with the movement channels a model conditioned on them takes, and the reading with the
+        values asked: each channel at the quantile the reading asks (the speed: its energy's; another attribute: its
+        score's; 0.5 when it says nothing) of a genre's training windows, of the ``weights``' blend of the genres',
+        or else the training windows' medians; other models: unchanged."""
         model = self.model
+        channels = getattr(model, "movement_channels", ())
+        if not channels:
+            return vector, reading
+        scores = {"speed": reading.energy, **dict(reading.attributes)}
+        quantiles = torch.tensor([speed_quantile(scores.get(name, 0.0)) for name in channels])
         if genre is not None:
-            speed = model.genre_speed(torch.tensor([genre]), quantile)[0]
+            values = model.genre_movement(torch.tensor([genre]), quantiles[None])[0]
         elif weights is not None:
-            medians = model.genre_speed(torch.arange(len(weights)), quantile)
-            speed = (weights.to(medians) @ medians) / weights.sum().clamp_min(1e-12)
+            table = model.genre_movement(torch.arange(len(weights)), quantiles.expand(len(weights), -1))
+            values = (weights.to(table) @ table) / weights.sum().clamp_min(1e-12)
         else:
-            speed = model.speed_reference.float()
-        speed = speed.float().cpu()
-        return model.with_speed(vector.float(), speed).cpu(), dataclasses.replace(reading, speed_m_s=float(speed))
+            values = torch.stack([getattr(model, f"{name}_reference").float() for name in channels])
+        values = values.float().cpu()
+        asked = dict(zip(channels, (float(v) for v in values), strict=True))
+        reading = dataclasses.replace(
+            reading, speed_m_s=asked.pop("speed", None), movement=tuple((k, v) for k, v in asked.items())
+        )
+        return model.with_movement(vector.float(), values).cpu(), reading
 
     def router(self) -> TextRouter:
         """The free-text reader of ``style_text_reading=router``, fitted once on the descriptions read through (the

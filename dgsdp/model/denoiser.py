@@ -27,9 +27,11 @@ vector, it predicts the clean motion x0 (B, T, pose_dim).
   at zero: an untrained student is its teacher's conditional model.
 - ``gradient_checkpointing`` recomputes each encoder/decoder layer's activations in the backward pass (less
   memory for long windows, about a third more compute).
-- ``speed_conditioning`` (in neither paper): the style vector has one more channel, the dance's mean joint speed
-  (its log, standardised over the training windows: :meth:`dgsdp.trained.TrainedModel.speed_channel`), which enters
-  every decoder layer with the style (Style Modulation, and wherever else the style goes) and drops with it.
+- ``movement_channels`` (in neither paper; :mod:`dgsdp.style.movement`): the style vector has one more channel per
+  measured attribute of the dance (its mean joint speed, level, arms, travel, turning; encoded scale-free over the
+  training windows: :meth:`dgsdp.trained.TrainedModel.movement_encoding`), which enter every decoder layer with the
+  style (Style Modulation, and wherever else the style goes) and drop with it. ``speed_conditioning=True`` is the
+  same as listing ``speed``.
 
 The EDGE architecture is ``rotary_placement="input", null_music="output"`` (see docs/edge.md).
 
@@ -40,6 +42,7 @@ music tokens) and passes it to every step as ``forward(x_t, t, cond=...)``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -49,6 +52,7 @@ from torch.utils.checkpoint import checkpoint
 
 from dgsdp.model.layers import Attention, Dropout, EncoderLayer, FeedForward, FiLM, sinusoidal_embedding
 from dgsdp.style.injection import StyleModulation
+from dgsdp.style.movement import movement_channels as resolve_movement_channels
 
 INJECTIONS = ("modulation", "concat")
 NULL_MUSIC = ("input", "output")
@@ -172,10 +176,15 @@ class DanceDenoiser(nn.Module):
         guidance_inputs: int = 0,
         gradient_checkpointing: bool = False,
         speed_conditioning: bool = False,
+        movement_channels: Sequence[str] = (),
     ) -> None:
         super().__init__()
-        if speed_conditioning and not style_dim:
-            raise ValueError("speed_conditioning travels with the style: it needs a model with style (style_dim > 0)")
+        self.movement_channels = resolve_movement_channels(movement_channels, speed_conditioning)
+        if self.movement_channels and not style_dim:
+            raise ValueError(
+                "movement channels (model.movement_channels, model.speed_conditioning) travel with the style: they "
+                "need a model with style (style_dim > 0)"
+            )
         if style_dim and style_injection not in INJECTIONS:
             raise ValueError(f"unknown style injection {style_injection!r}; use one of {INJECTIONS}")
         if null_music not in NULL_MUSIC:
@@ -188,8 +197,7 @@ class DanceDenoiser(nn.Module):
         self.gradient_checkpointing = gradient_checkpointing
         self.pose_dim, self.seq_len, self.d_model = pose_dim, seq_len, d_model
         self.audio_dim, self.style_dim = audio_dim, style_dim
-        self.speed_conditioning = bool(speed_conditioning)
-        style_in = self.style_in = style_dim + int(self.speed_conditioning)  # the style vector's channels
+        style_in = self.style_in = style_dim + len(self.movement_channels)  # the style vector's channels
         self.use_modulation = bool(style_dim) and style_injection == "modulation"
         self.use_concat = bool(style_dim) and (style_injection == "concat" or also_concat)
 
@@ -283,13 +291,17 @@ class DanceDenoiser(nn.Module):
             return None
         null = self.null_style.expand(batch, self.style_in)
         if style is not None and style.shape[-1] != self.style_in:
-            what = f"{self.style_dim} style channels and the speed channel" if self.speed_conditioning else "its style"
+            extra = self.movement_channels
+            plural = "s" if len(extra) > 1 else ""
+            what = (
+                f"{self.style_dim} style channels and the {', '.join(extra)} channel{plural}" if extra else "its style"
+            )
             raise ValueError(
                 f"this denoiser takes style vectors of {self.style_in} channels ({what}), got {tuple(style.shape)}"
             )
         if style is None:
             return null
-        if self.style_standardize is not None:  # the text embedding's channels only, not the speed
+        if self.style_standardize is not None:  # the text embedding's channels only, not the movement channels
             text = (style[..., : self.style_dim] - self.style_mean.to(style.dtype)) * self.style_scale.to(style.dtype)
             style = torch.cat((text, style[..., self.style_dim :]), dim=-1)
         if style.ndim == 3:  # per-frame style (B, T, ds)

@@ -30,6 +30,7 @@ from dgsdp.registry import Source
 from dgsdp.safety.checkpoint_file import load_checkpoint, reading
 from dgsdp.sampling import Sampler
 from dgsdp.style.embeddings import StyleBank
+from dgsdp.style.movement import movement_channels
 from dgsdp.trained.spec import RunSpec
 
 CHECKPOINT_FORMAT = 2
@@ -69,12 +70,17 @@ class TrainedModel(nn.Module):
         self.register_buffer("style_vectors", torch.zeros(cond.style_bank_size, self.style_dim))
         self.register_buffer("style_genre_index", torch.zeros(cond.style_bank_size, dtype=torch.long))
         self.n_genres = cond.n_genres
-        # a model conditioned on speed (model.speed_conditioning) records its training windows' mean joint speeds:
-        # per genre, their quantiles 0, 0.1, ..., 1 (m/s), and the median of all of them, the speed channel's zero
-        self.speed_conditioning = bool(spec.model.get("speed_conditioning", False))
-        if self.speed_conditioning:
-            self.register_buffer("speed_quantiles", torch.full((cond.n_genres, SPEED_QUANTILES), math.nan))
-            self.register_buffer("speed_reference", torch.tensor(math.nan))
+        # a model conditioned on movement channels (model.movement_channels; model.speed_conditioning: speed) records
+        # its training windows' values of each: per genre, their quantiles 0, 0.1, ..., 1 (``<channel>_quantiles``),
+        # the median of all of them (``<channel>_reference``, the channel's zero) and, but for speed (encoded as a
+        # log ratio to its median), their 10th-to-90th percentile spread (``<channel>_spread``, the channel's unit)
+        self.movement_channels = movement_channels(spec.model.get("movement_channels"),
+                                                   bool(spec.model.get("speed_conditioning", False)))  # fmt: skip
+        for name in self.movement_channels:
+            self.register_buffer(f"{name}_quantiles", torch.full((cond.n_genres, SPEED_QUANTILES), math.nan))
+            self.register_buffer(f"{name}_reference", torch.tensor(math.nan))
+            if name != "speed":
+                self.register_buffer(f"{name}_spread", torch.tensor(math.nan))
         self.ema = AveragedModel(self.denoiser, multi_avg_fn=get_ema_multi_avg_fn(spec.ema_decay), use_buffers=True)
         self.ema.requires_grad_(False)
 
@@ -92,43 +98,92 @@ class TrainedModel(nn.Module):
         for denoiser in (self.denoiser, self.ema.module):
             denoiser.set_style_statistics(self.style_vectors)
 
-    def set_speed_statistics(self, quantiles: Any, reference: float) -> None:
-        """Store the training windows' speeds (per genre quantiles (n_genres, SPEED_QUANTILES) and the median of
-        all, m/s) of a speed-conditioned model; a no-op for other models."""
-        if not self.speed_conditioning:
-            return
-        quantiles = torch.as_tensor(quantiles, dtype=torch.float32)
-        if quantiles.shape != self.speed_quantiles.shape:
-            raise ConfigError(
-                f"speed quantiles {tuple(quantiles.shape)} do not match {tuple(self.speed_quantiles.shape)}"
-            )
-        if not (math.isfinite(reference) and reference > 0):
-            raise ConfigError(f"the training windows' median speed must be a positive number, got {reference}")
-        self.speed_quantiles.copy_(quantiles)
-        self.speed_reference.fill_(float(reference))
+    @property
+    def speed_conditioning(self) -> bool:
+        """Whether the model takes the dance's mean joint speed as a style channel."""
+        return "speed" in self.movement_channels
 
-    def genre_speed(self, genre: torch.Tensor, quantile: float | torch.Tensor = 0.5) -> torch.Tensor:
-        """The speed (m/s, (B,)) at ``quantile`` (0-1; scalar or (B,)) of each genre's training windows, linear
-        between the recorded quantiles; the median of all windows for a genre the training data lacks."""
-        table = self.speed_quantiles.to(genre.device)
-        position = torch.as_tensor(quantile, dtype=table.dtype, device=genre.device).clamp(0, 1) * (table.shape[1] - 1)
+    def set_movement_statistics(self, quantiles: Any, reference: Any, spread: Any) -> None:
+        """Store the training windows' movement values of each of the model's channels, in its channels' order:
+        per genre quantiles (C, n_genres, SPEED_QUANTILES), the median of all windows (C,) and the 10th-to-90th
+        percentile spread of all windows (C,; not used for speed); a no-op for a model without movement channels."""
+        if not self.movement_channels:
+            return
+        n = len(self.movement_channels)
+        quantiles = torch.as_tensor(quantiles, dtype=torch.float32)
+        reference = torch.as_tensor(reference, dtype=torch.float32).reshape(-1)
+        spread = torch.as_tensor(spread, dtype=torch.float32).reshape(-1)
+        want = (n, self.n_genres, SPEED_QUANTILES)
+        if tuple(quantiles.shape) != want or reference.shape != (n,) or spread.shape != (n,):
+            raise ConfigError(
+                f"movement statistics {tuple(quantiles.shape)}, {tuple(reference.shape)}, {tuple(spread.shape)} do "
+                f"not match the model's channels ({', '.join(self.movement_channels)}): {want}, ({n},), ({n},)"
+            )
+        for k, name in enumerate(self.movement_channels):
+            value, unit = float(reference[k]), float(spread[k])
+            if not math.isfinite(value) or (name == "speed" and value <= 0):
+                raise ConfigError(f"the training windows' median {name} must be a finite (for speed positive) number, "
+                                  f"got {value}")  # fmt: skip
+            if name != "speed" and not (math.isfinite(unit) and unit > 0):
+                raise ConfigError(
+                    f"the training windows' {name} does not vary (its 10th-to-90th percentile spread is {unit}); "
+                    f"leave {name} out of model.movement_channels"
+                )
+            self.quantile_table(name).copy_(quantiles[k])
+            getattr(self, f"{name}_reference").fill_(value)
+            if name != "speed":
+                getattr(self, f"{name}_spread").fill_(unit)
+
+    def quantile_table(self, name: str) -> torch.Tensor:
+        """The recorded quantiles (n_genres, SPEED_QUANTILES) of a movement channel's training windows."""
+        if name not in self.movement_channels:
+            raise ConfigError(f"this model takes no {name} channel (its channels: {self.movement_channels or 'none'})")
+        return getattr(self, f"{name}_quantiles")
+
+    def genre_movement(self, genre: torch.Tensor, quantile: float | torch.Tensor = 0.5) -> torch.Tensor:
+        """Movement values (B, C) at ``quantile`` (0-1; scalar, (B,) or (B, C)) of each genre's training windows,
+        linear between the recorded quantiles; the median of all windows for a genre the training data lacks."""
+        q = torch.as_tensor(quantile, dtype=torch.float32, device=genre.device)
+        q = (q[:, None] if q.ndim == 1 else q).expand(*genre.shape, len(self.movement_channels))
+        columns = [self._at_quantile(name, genre, q[..., k]) for k, name in enumerate(self.movement_channels)]
+        return torch.stack(columns, dim=-1)
+
+    def _at_quantile(self, name: str, genre: torch.Tensor, quantile: torch.Tensor) -> torch.Tensor:
+        table = self.quantile_table(name).to(genre.device)
+        position = quantile.to(table.dtype).clamp(0, 1) * (table.shape[1] - 1)
         position = position.expand(genre.shape)
         lo = position.floor().long().clamp(max=table.shape[1] - 2)
         w = position - lo
         rows = table[genre]
-        speed = rows.gather(1, lo[:, None])[:, 0] * (1 - w) + rows.gather(1, (lo + 1)[:, None])[:, 0] * w
-        return torch.where(torch.isfinite(speed), speed, self.speed_reference.to(speed))
+        value = rows.gather(1, lo[:, None])[:, 0] * (1 - w) + rows.gather(1, (lo + 1)[:, None])[:, 0] * w
+        reference = getattr(self, f"{name}_reference").to(value)
+        return torch.where(torch.isfinite(value), value, reference)
 
-    def speed_channel(self, speed_m_s: torch.Tensor) -> torch.Tensor:
-        """The style vector's speed channel for mean joint speeds (m/s): log2 of the speed over the training
-        windows' median (one unit: twice or half as fast)."""
-        reference = self.speed_reference.to(speed_m_s.device, torch.float32)
-        return torch.log2(speed_m_s.float().clamp_min(1e-3) / reference)
+    def genre_speed(self, genre: torch.Tensor, quantile: float | torch.Tensor = 0.5) -> torch.Tensor:
+        """The speed (m/s, (B,)) at ``quantile`` (scalar or (B,)) of each genre's training windows
+        (:meth:`genre_movement`'s speed column)."""
+        q = torch.as_tensor(quantile, dtype=torch.float32, device=genre.device)
+        return self._at_quantile("speed", genre, q)
 
-    def with_speed(self, style: torch.Tensor, speed_m_s: torch.Tensor) -> torch.Tensor:
-        """Style vectors (B, ds) or (ds,) with their speed channel appended, for mean joint speeds (B,) or ()."""
-        channel = self.speed_channel(speed_m_s).to(style.dtype)
-        return torch.cat((style, channel[..., None]), dim=-1)
+    def movement_encoding(self, values: torch.Tensor) -> torch.Tensor:
+        """The style vector's movement channels (..., C) for measured values (..., C) in the model's channels'
+        order: speed as log2 of its ratio to the training windows' median (one unit: twice or half as fast); the
+        others as their distance from the training windows' median in 10th-to-90th percentile spreads."""
+        columns = []
+        for k, name in enumerate(self.movement_channels):
+            value = values[..., k].float()
+            reference = getattr(self, f"{name}_reference").to(value.device, torch.float32)
+            if name == "speed":
+                columns.append(torch.log2(value.clamp_min(1e-3) / reference))
+            else:
+                spread = getattr(self, f"{name}_spread").to(value.device, torch.float32)
+                columns.append((value - reference) / spread)
+        return torch.stack(columns, dim=-1)
+
+    def with_movement(self, style: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        """Style vectors (B, ds) or (ds,) with their movement channels appended, for movement values (B, C) or (C,)
+        in the model's channels' order (:meth:`movement_encoding`)."""
+        return torch.cat((style, self.movement_encoding(values).to(style.dtype)), dim=-1)
 
     def set_floor_height(self, metres: float) -> None:
         """Store the floor height of the training data (z-up metres, see dgsdp.motion.floor)."""
@@ -164,18 +219,20 @@ class TrainedModel(nn.Module):
 
     # --- conditioning ------------------------------------------------------------------------------------
     def style_for(
-        self, genre: torch.Tensor, random: bool, check: bool = True, speed: torch.Tensor | None = None
+        self, genre: torch.Tensor, random: bool, check: bool = True, movement: torch.Tensor | None = None
     ) -> torch.Tensor | None:
         """Style vectors (B, ds) for genre indices (B,): a random bank row of each genre, or the genre's mean; for a
-        speed-conditioned model (B, ds + 1), with the speed channel of ``speed`` (B,) m/s (default: each genre's
-        median speed). ``check=False`` skips the range checks (they read values back from the device)."""
+        model with movement channels (B, ds + C), with the channels of ``movement`` (B, C) (the training windows'
+        measured values; default: each genre's medians). ``check=False`` skips the range checks (they read values
+        back from the device)."""
         bank = self.style_bank
         if bank is None:
             return None
         style = bank.sample(genre, check=check) if random else bank.mean_for(genre, check=check)
-        if not self.speed_conditioning:
+        if not self.movement_channels:
             return style
-        return self.with_speed(style, self.genre_speed(genre) if speed is None else speed.to(style.device))
+        values = self.genre_movement(genre) if movement is None else movement.to(style.device)
+        return self.with_movement(style, values)
 
     # --- sampling ----------------------------------------------------------------------------------------
     def sampler(self, use_ema: bool = True) -> Sampler:

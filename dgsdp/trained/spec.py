@@ -368,7 +368,10 @@ class RunSpec:
         # a key an older run did not store has the value it was built with
         model = {**defaults, **getattr(cls, "legacy_settings", {}), **self.model, "pose_dim": self.skeleton.pose_dim}
         return {
-            "model": {k: v for k, v in model.items() if k not in SHAPE_FREE_MODEL_KEYS},
+            # lists as tuples: a config's [] is the constructor's default ()
+            "model": {
+                k: tuple(v) if isinstance(v, list) else v for k, v in model.items() if k not in SHAPE_FREE_MODEL_KEYS
+            },  # fmt: skip
             "skeleton": self.skeleton.to_dict(),
             "audio_dim": c.audio_dim,
             "style_kind": c.style_kind,

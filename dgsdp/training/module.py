@@ -75,7 +75,7 @@ class DanceDiffusion(TrainedModel, L.LightningModule):
         t = self.diffusion.sample_timesteps(x0.shape[0], x0.device, generator)
         noise = torch.randn(x0.shape, device=x0.device, generator=generator)
         # genre indices come from the dataset's vocabulary (checked when it was read): no device read-back here
-        style = self.style_for(batch["genre"], random=train, check=False, speed=batch.get("speed"))
+        style = self.style_for(batch["genre"], random=train, check=False, movement=batch.get("movement"))
         return t, self.diffusion.q_sample(x0, t, noise), style
 
     def _loss(

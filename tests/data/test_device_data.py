@@ -12,6 +12,7 @@ from dgsdp.data.datamodule import DanceDataModule, EpochShuffleSampler, Resumabl
 from dgsdp.data.device import DeviceLoader, DeviceWindows
 from dgsdp.data.synthetic import generate_synthetic_aistpp
 from dgsdp.errors import ConfigError
+from dgsdp.style.movement import MOVEMENT_CHANNELS
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +21,7 @@ def datamodule(tmp_path_factory):
     root = generate_synthetic_aistpp(base / "data", seed=0, sequences_per_genre=2, seconds=7.0, num_ignored=0)
     dm = DanceDataModule(
         str(root), str(base / "cache"), audio_encoder=LibrosaEncoder(), batch_size=4, progress=False,
-        window_speeds=True,
+        movement_channels=MOVEMENT_CHANNELS,
     )  # fmt: skip
     dm.setup("fit")
     return dm
@@ -48,7 +49,7 @@ def test_batches_equal_the_host_loaders_over_epochs(datamodule):
         pairs = list(zip(host, device, strict=True))
         assert len(pairs) == len(host)
         for a, b in pairs:
-            assert {"motion", "audio", "speed", "genre", "start", "name", "music_id"} <= a.keys()
+            assert {"motion", "audio", "movement", "genre", "start", "name", "music_id"} <= a.keys()
             assert_same_batch(a, b)
     # validation: in order, the last batch partial
     val = datamodule.datasets["val"]
