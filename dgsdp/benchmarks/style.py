@@ -19,6 +19,12 @@ features of 5 s windows, fitted on the training split's dances):
   description with a speed or energy word and its opposite (:data:`MODIFIER_PAIRS`: "slow krump" / "fast krump", "gentle krump" /
   "explosive krump", "slow gentle krump" / "fast explosive krump"); a pair is ordered right when the faster word's
   dance has the higher mean joint speed;
+- **attribute pairs** (``--attributes aistpp``, the held-out wordings of
+  ``dgsdp/resources/style_heldout/attributes/``): for every movement attribute (level, arms, travel, turning), pairs
+  of wordings asking for its two ends with a genre's name ("{genre} hugging the ground" / "{genre} stood straight up
+  like a soldier"), each pair danced for every genre on one of the modifier check's clips with one seed; a pair is
+  ordered right when the dance asked for more measures more (:mod:`dgsdp.metrics.attributes`), and the attribute-asked
+  dances' genre accuracy says whether the genre survived the words;
 - **a style schedule**: two genres, 10 s each, on held-out songs; the accuracy of each span's 5 s windows (away
   from the 2 s blend) and how many frames the switch takes (2 s windows classified every 5 frames);
 - **real songs** (``--songs DIR``, a folder of songs, e.g. one made by ``python -m dgsdp.benchmarks.realsongs
@@ -28,6 +34,9 @@ The ground truth's accuracy (the test split's real dances, the same clips) is pr
 
     style_acc=<raw genre accuracy> text_acc=<raw free-text accuracy> genre_speed_within_30pct=<n>/10
     speed_spearman=<raw speed rank correlation> modifiers=<raw fraction of pairs ordered right> gt_acc=<gt>
+
+followed, with ``--attributes``, by each attribute's fraction of pairs ordered right and the attribute-asked
+dances' genre accuracy (``level=... arms=... travel=... turning=... attribute_genre_acc=...``).
 
 With several checkpoints (one per training seed) each is measured in turn and the last line gives the means.
 """
@@ -48,6 +57,7 @@ import torch
 from tqdm.auto import tqdm
 
 from dgsdp.errors import ConfigError, DgsdpError
+from dgsdp.metrics.attributes import movement_attributes
 from dgsdp.metrics.speed import mean_joint_speed
 from dgsdp.motion import SMPL24, Skeleton
 from dgsdp.resources import RESOURCES_DIR
@@ -55,6 +65,9 @@ from dgsdp.resources import RESOURCES_DIR
 HELDOUT_DIR = RESOURCES_DIR / "style_heldout"
 HELDOUT_FILE = HELDOUT_DIR / "aistpp.yaml"
 """Held-out free-text descriptions, kept apart from the training prompts (``resources/style_prompts/``)."""
+ATTRIBUTE_HELDOUT_DIR = HELDOUT_DIR / "attributes"
+"""Held-out wordings of the movement attributes (pairs asking for either end), kept apart from the reader's words."""
+ATTRIBUTE_NAMES = ("level", "arms", "travel", "turning")
 NAMED_FIRST = {"aistpp": 2, "aistpp_second": 2, "aistpp_third": 0}
 """How many of each genre's descriptions name the genre, first, in each shipped held-out list (another file: 2)."""
 SPEED_TOLERANCE = 0.30
@@ -115,6 +128,15 @@ def ordered_right(slower: Sequence[float], faster: Sequence[float]) -> float:
     """The fraction of pairs whose faster-worded dance has the higher mean joint speed."""
     pairs = list(zip(slower, faster, strict=True))
     return float(np.mean([f > s for s, f in pairs])) if pairs else math.nan
+
+
+def attribute_figures(
+    lower: Sequence[float], higher: Sequence[float], asked: Sequence[int], seen: Sequence[int]
+) -> dict[str, float]:
+    """Of one attribute's pairs (the measured values of the dance asked for less and of the one asked for more) and
+    of their dances' genres (asked, seen by the classifier; both dances of every pair): the fraction of pairs ordered
+    right and the genre accuracy."""
+    return {"right": ordered_right(lower, higher), "genre_acc": accuracy(asked, seen)}
 
 
 def within(ratio: float, tolerance: float = SPEED_TOLERANCE) -> bool:
@@ -202,6 +224,46 @@ def resolve_heldout(heldout: str | None) -> Path:
     return path
 
 
+def resolve_attribute_wordings(name: str) -> Path:
+    """The held-out attribute wordings: a shipped list's name in ``dgsdp/resources/style_heldout/attributes/`` or a
+    yaml path."""
+    path = Path(name).expanduser()
+    if not path.suffix:
+        path = ATTRIBUTE_HELDOUT_DIR / f"{name}.yaml"
+    if not path.is_file():
+        shipped = ", ".join(sorted(p.stem for p in ATTRIBUTE_HELDOUT_DIR.glob("*.yaml")))
+        raise ConfigError(f"--attributes {name}: no such file; give a yaml path or a shipped list's name ({shipped})")
+    return path
+
+
+def load_attribute_pairs(path: Path) -> dict[str, list[tuple[str, str]]]:
+    """The pairs (asking for less, asking for more) of each movement attribute in a wordings file (see the shipped
+    one), each with a ``{genre}`` placeholder."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as e:
+        raise ConfigError(f"{path}: cannot read the attribute wordings ({e})") from e
+    if not isinstance(data, dict) or not data:
+        raise ConfigError(f"{path} must map movement attributes ({', '.join(ATTRIBUTE_NAMES)}) to pairs of wordings")
+    out: dict[str, list[tuple[str, str]]] = {}
+    for name, pairs in data.items():
+        if name not in ATTRIBUTE_NAMES:
+            raise ConfigError(f"{path}: unknown attribute {name!r}; use {', '.join(ATTRIBUTE_NAMES)}")
+        if not isinstance(pairs, list) or not pairs:
+            raise ConfigError(f"{path}: {name} must list pairs [asking for less, asking for more]")
+        for pair in pairs:
+            if (
+                not isinstance(pair, list)
+                or len(pair) != 2
+                or not all(isinstance(t, str) and "{genre}" in t for t in pair)
+            ):
+                raise ConfigError(f"{path}: {name}: {pair!r} is not a pair of two wordings, each with {{genre}}")
+        out[name] = [(a, b) for a, b in pairs]
+    return out
+
+
 class StyleBenchmark:
     """Measures one checkpoint. ``overrides``: generate.py settings (e.g. ``sampling=edge``,
     ``sampling.guidance.music=2.5``); the finished dances use its finishing settings."""
@@ -216,6 +278,7 @@ class StyleBenchmark:
         raw_only: bool = False,
         progress: bool = True,
         heldout: str | Sequence[str] | None = None,
+        attributes: str | None = None,
     ) -> None:
         from dgsdp.cli.config import compose_config
         from dgsdp.cli.generate import generate_settings
@@ -235,6 +298,8 @@ class StyleBenchmark:
         self.raw_only = bool(raw_only)  # quick screening: the finished clips are not made
         lists = [heldout] if heldout is None or isinstance(heldout, str) else list(heldout)
         self.heldout_files = [resolve_heldout(h) for h in lists]
+        self.attribute_file = None if attributes is None else resolve_attribute_wordings(attributes)
+        self.attribute_pairs = None if self.attribute_file is None else load_attribute_pairs(self.attribute_file)
         self.progress = progress
         self.vocab = self.generator.embedder().vocab
         self.fps = self.generator.fps
@@ -336,6 +401,10 @@ class StyleBenchmark:
             self._free_text(result, requests, genres, beats, judge)
             stage("modifier pairs")
             self._modifiers(result, requests, genres, beats, clips)
+            if self.attribute_pairs is not None:
+                stage("attribute pairs")
+                result["attribute_wordings"] = self.attribute_file.name
+                self._attributes(result, requests, genres, beats, clips, judge)
         bar.update()
 
         stage("style schedules")
@@ -376,17 +445,23 @@ class StyleBenchmark:
                 if i == 0:
                     result[name].update(figures)
 
+    @staticmethod
+    def _chosen_clips(genres: list[int], clips: list[Any]) -> dict[int, dict[str, int]]:
+        """genre -> the first clip (its index) of each of its first :data:`MODIFIER_SONGS` held-out dances."""
+        chosen: dict[int, dict[str, int]] = {}
+        for k, (g, clip) in enumerate(zip(genres, clips)):
+            dances = chosen.setdefault(g, {})
+            if clip.seq.name not in dances and len(dances) < MODIFIER_SONGS:
+                dances[clip.seq.name] = k
+        return chosen
+
     def _modifiers(
         self, result: dict[str, Any], requests: list[Any], genres: list[int], beats: list[Any], clips: list[Any]
     ) -> None:
         """Each genre's first clip of each of its first :data:`MODIFIER_SONGS` held-out dances, asked with each of
         :data:`MODIFIER_PAIRS`, one seed: the fraction of pairs whose faster-worded dance moves faster, and each
         pair's speeds."""
-        chosen: dict[int, dict[str, int]] = {}  # genre -> dance name -> its first clip
-        for k, (g, clip) in enumerate(zip(genres, clips)):
-            dances = chosen.setdefault(g, {})
-            if clip.seq.name not in dances and len(dances) < MODIFIER_SONGS:
-                dances[clip.seq.name] = k
+        chosen = self._chosen_clips(genres, clips)
         pair_requests, pair_beats, rows = [], [], []
         for g, k in sorted((g, k) for g, dances in chosen.items() for k in dances.values()):
             name = self.vocab.names[g].lower()
@@ -407,6 +482,57 @@ class StyleBenchmark:
             result[name]["modifier_pairs"] = [
                 {**row, "slower_m_s": a, "faster_m_s": b} for row, a, b in zip(rows, slower, faster, strict=True)
             ]
+
+    def _attributes(
+        self,
+        result: dict[str, Any],
+        requests: list[Any],
+        genres: list[int],
+        beats: list[Any],
+        clips: list[Any],
+        judge: Judge,
+    ) -> None:
+        """Every pair of held-out attribute wordings, with every genre's name, danced on one of the genre's modifier
+        clips (the pairs in turn), one seed for both: per attribute the fraction of pairs whose dance asked for
+        more measures more, the genre accuracy of its dances, and each pair's measured values."""
+        chosen = {g: list(dances.values()) for g, dances in self._chosen_clips(genres, clips).items()}
+        pair_requests, pair_beats, rows = [], [], []
+        for attribute, pairs in self.attribute_pairs.items():
+            for i, (less, more) in enumerate(pairs):
+                for g in sorted(chosen):
+                    k = chosen[g][i % len(chosen[g])]
+                    name = self.vocab.names[g].lower()
+                    texts = (less.format(genre=name), more.format(genre=name))
+                    for text in texts:
+                        style = self.generator.embed_style(f"text: {text}")
+                        pair_requests.append(dataclasses.replace(requests[k], style=style))
+                        pair_beats.append(beats[k])
+                    rows.append({"attribute": attribute, "genre": g, "dance": clips[k].seq.name, "less": texts[0],
+                                 "more": texts[1]})  # fmt: skip
+        floor_m = float(self.generator.model.floor_height)
+        dances = self._sample(pair_requests, pair_beats)
+        for variant, joints in dances.items():
+            seen = judge.predict(joints)
+            measured = [movement_attributes(j, SMPL24, self.fps, floor_m, ATTRIBUTE_NAMES) for j in joints]
+            right, genre_acc, out_rows = {}, {}, []
+            for attribute in self.attribute_pairs:
+                picks = [r for r, row in enumerate(rows) if row["attribute"] == attribute]
+                lower = [measured[2 * r][attribute] for r in picks]
+                higher = [measured[2 * r + 1][attribute] for r in picks]
+                asked = [rows[r]["genre"] for r in picks for _ in (0, 1)]
+                got = [int(seen[2 * r + side]) for r in picks for side in (0, 1)]
+                figures = attribute_figures(lower, higher, asked, got)
+                right[attribute], genre_acc[attribute] = figures["right"], figures["genre_acc"]
+                out_rows += [
+                    {**rows[r], "genre": self.vocab.codes[rows[r]["genre"]], "less_value": a, "more_value": b}
+                    for r, a, b in zip(picks, lower, higher, strict=True)
+                ]
+            result[variant].update(
+                attributes_right=right,
+                attribute_genre_acc=accuracy([row["genre"] for row in rows for _ in (0, 1)], seen),
+                attribute_genre_acc_by_attribute=genre_acc,
+                attribute_pairs=out_rows,
+            )
 
     def _train_speeds(self, train: list[Any]) -> dict[int, float]:
         """Mean joint speed over every frame of each genre's training dances."""
@@ -534,6 +660,10 @@ def _looped(path: Path, seconds: float, folder: Path) -> Path:
 
 
 # --- report ---------------------------------------------------------------------------------------------------------
+_ATTRIBUTE_ENDS = {"level": "crouched / upright", "arms": "arms down / raised", "travel": "on the spot / across the floor",
+                   "turning": "facing ahead / turning"}  # fmt: skip
+
+
 def _pct(x: float | None) -> str:
     return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.2f}"
 
@@ -570,6 +700,16 @@ def report_lines(result: dict[str, Any]) -> list[str]:
         f"{'genres within 30% of speed':28s}{count(raw):>8s}{count(fin):>10s}",
         f"{'speed rank correlation':28s}{both('speed_spearman')}   (Spearman, genres' training speed vs danced)",
         f"{'modifier pairs right':28s}{both('modifiers_right')}   (slow/fast, gentle/explosive: faster word faster)",
+        *(
+            f"{'attribute pairs right, ' + name:28s}{_pct(value):>8s}"
+            f"{_pct((fin.get('attributes_right') or {}).get(name)):>10s}   ({_ATTRIBUTE_ENDS[name]})"
+            for name, value in (raw.get("attributes_right") or {}).items()
+        ),
+        *(
+            [f"{'genre acc., attribute words':28s}{both('attribute_genre_acc')}   ({result['attribute_wordings']})"]
+            if raw.get("attributes_right")
+            else []
+        ),
         "speed over the genre's own training dances (raw/finished): "
         + "  ".join(f"{c} {ratio(raw, c)}/{ratio(fin, c)}" for c in codes),
     ]
@@ -609,7 +749,8 @@ def report_lines(result: dict[str, Any]) -> list[str]:
 
 def last_line(results: Sequence[dict[str, Any]]) -> str:
     """``style_acc=... text_acc=... genre_speed_within_30pct=n/10 speed_spearman=... modifiers=... gt_acc=...`` of
-    the raw model (means over the checkpoints; the genre count rounded down)."""
+    the raw model (means over the checkpoints; the genre count rounded down), then, where the attribute pairs were
+    measured, ``level=... arms=... travel=... turning=... attribute_genre_acc=...``."""
     raw = [r["raw"] for r in results]
     n_genres = len(results[0]["genres"])
     within_mean = float(np.mean([r["genre_speed_within"] for r in raw]))
@@ -617,12 +758,18 @@ def last_line(results: Sequence[dict[str, Any]]) -> str:
     def mean(key: str) -> float:
         return float(np.mean([r.get(key, math.nan) for r in raw]))
 
-    return (
+    line = (
         f"style_acc={mean('genre_acc'):.3f} text_acc={mean('text_acc'):.3f} "
         f"genre_speed_within_30pct={math.floor(within_mean)}/{n_genres} "
         f"speed_spearman={mean('speed_spearman'):.3f} modifiers={mean('modifiers_right'):.3f} "
         f"gt_acc={np.mean([r['gt_acc'] for r in results]):.3f}"
     )
+    measured = [r.get("attributes_right") or {} for r in raw]
+    names = [name for name in ATTRIBUTE_NAMES if all(name in m for m in measured)]
+    if names:
+        line += "".join(f" {name}={np.mean([m[name] for m in measured]):.3f}" for name in names)
+        line += f" attribute_genre_acc={mean('attribute_genre_acc'):.3f}"
+    return line
 
 
 def save_confusion_png(results: Sequence[dict[str, Any]], path: Path) -> None:
@@ -675,6 +822,11 @@ def main(argv: list[str] | None = None) -> int:
         help="the held-out descriptions: a shipped list's name (aistpp, the default; aistpp_second, aistpp_third) or "
         "a yaml path; repeat it to measure several lists on the same clips",
     )  # fmt: skip
+    parser.add_argument(
+        "--attributes", default=None,
+        help="also measure the movement attributes' held-out wording pairs: a shipped list's name (aistpp) or a yaml "
+        "path (400 more dances for the 10 AIST++ genres)",
+    )  # fmt: skip
     parser.add_argument("--json", default=None, help="write every figure to this JSON file")
     parser.add_argument("--png", default=None, help="write the confusion matrices to this png")
     parser.add_argument("--no-progress", action="store_true")
@@ -691,6 +843,7 @@ def main(argv: list[str] | None = None) -> int:
             bench = StyleBenchmark(
                 checkpoint, args.overrides, data_root=args.data_root, max_clips=args.max_clips,
                 raw_only=args.raw_only, progress=not args.no_progress, heldout=args.heldout,
+                attributes=args.attributes,
             )  # fmt: skip
             result = bench.run(songs, args.song_seconds)
             print("\n".join(report_lines(result)), flush=True)

@@ -126,6 +126,43 @@ def test_speed_rank_and_modifier_pairs_by_hand():
     ]
 
 
+def test_attribute_pairs_by_hand():
+    """A pair is ordered right when the dance asked for more measures more (a tie is not); the genre accuracy is over
+    both dances of every pair."""
+    figures = sb.attribute_figures([0.9, 0.8, 0.7], [1.0, 0.8, 0.5], asked=[0, 0, 1, 1, 2, 2], seen=[0, 1, 1, 1, 2, 0])
+    assert figures == pytest.approx({"right": 1 / 3, "genre_acc": 4 / 6})
+    results = [{"genres": list("ab"), "gt_acc": 0.9, "raw": {
+        "genre_acc": 0.5, "text_acc": 0.2, "genre_speed_within": 1, "speed_spearman": 0.5, "modifiers_right": 0.8,
+        "attributes_right": {"level": 0.6, "turning": 0.25}, "attribute_genre_acc": 0.4}}]  # fmt: skip
+    assert sb.last_line(results).endswith("gt_acc=0.900 level=0.600 turning=0.250 attribute_genre_acc=0.400")
+    lines = sb.report_lines({**results[0], "checkpoint": "c", "n_clips": 2, "data_root": "d", "finished": None,
+                             "sampling": {"method": "ddim", "steps": 2, "guidance": {"music": 1.0, "style": 1.0}},
+                             "heldout_descriptions": "aistpp.yaml", "attribute_wordings": "aistpp.yaml",
+                             "raw": {**results[0]["raw"], "speed_ratio": {}, "confusion": [[1, 0], [0, 1]]}})  # fmt: skip
+    assert any(line.startswith("attribute pairs right, level") and "0.60" in line for line in lines)
+    assert any(line.startswith("genre acc., attribute words") and "0.40" in line for line in lines)
+
+
+def test_the_shipped_attribute_wordings(tmp_path):
+    path = sb.resolve_attribute_wordings("aistpp")
+    assert path == sb.ATTRIBUTE_HELDOUT_DIR / "aistpp.yaml"
+    pairs = sb.load_attribute_pairs(path)
+    assert list(pairs) == list(sb.ATTRIBUTE_NAMES) and all(len(p) >= 4 for p in pairs.values())
+    texts = [t for p in pairs.values() for pair in p for t in pair]
+    assert len(set(texts)) == len(texts)  # no wording twice
+    training = {t.lower() for texts in load_prompts(STYLE_PROMPTS_FILE, AISTPP_GENRES) for t in texts}
+    assert not {t.format(genre=n.lower()).lower() for t in texts for n in AISTPP_GENRES.names} & training
+    with pytest.raises(sb.ConfigError, match="no such file"):
+        sb.resolve_attribute_wordings("nowhere")
+    bad = tmp_path / "bad.yaml"
+    for text, message in (("speed: [['slow {genre}', 'fast {genre}']]", "unknown attribute 'speed'"),
+                          ("level: [['low {genre}']]", "not a pair"), ("arms: [['up', 'down {genre}']]", "not a pair"),
+                          ("- a list", "must map")):  # fmt: skip
+        bad.write_text(text)
+        with pytest.raises(sb.ConfigError, match=message):
+            sb.load_attribute_pairs(sb.resolve_attribute_wordings(str(bad)))
+
+
 @pytest.fixture(scope="module")
 def prompt_checkpoint(tmp_path_factory):
     """A tiny prompt-conditioned model (MiniLM, offline) trained for 2 steps on a small synthetic dataset."""
@@ -147,10 +184,12 @@ def prompt_checkpoint(tmp_path_factory):
 def test_benchmark_end_to_end(prompt_checkpoint, capsys):
     run = prompt_checkpoint
     out = run["base"] / "out"
+    wordings = run["base"] / "wordings.yaml"  # one pair: ten more pairs of dances, one per genre
+    wordings.write_text("turning:\n  - ['{genre} facing ahead', '{genre} spinning']\n")
     code = sb.main([
         "--checkpoint", run["checkpoint"], "--data-root", run["root"], "--max-clips", "10", "--no-progress",
         "--json", str(out / "style.json"), "--png", str(out / "confusion.png"), "--heldout", "aistpp_second",
-        "--heldout", "aistpp_third",
+        "--heldout", "aistpp_third", "--attributes", str(wordings),
         "device=cpu", "sampling.steps=2", f"paths.cache_dir={run['cache']}",
     ])  # fmt: skip
     assert code == 0
@@ -180,6 +219,12 @@ def test_benchmark_end_to_end(prompt_checkpoint, capsys):
         right = np.mean([p["faster_m_s"] > p["slower_m_s"] for p in pairs])
         assert figures["modifiers_right"] == pytest.approx(right)
         assert -1.0 <= figures["speed_spearman"] <= 1.0
+        pairs = figures["attribute_pairs"]
+        assert len(pairs) == 10 and {p["genre"] for p in pairs} == set(AISTPP_GENRES.codes)
+        assert pairs[0]["less"] == "break facing ahead" and pairs[0]["more"] == "break spinning"
+        right = np.mean([p["more_value"] > p["less_value"] for p in pairs])
+        assert set(figures["attributes_right"]) == {"turning"} and figures["attributes_right"]["turning"] == right
+        assert 0.0 <= figures["attribute_genre_acc"] <= 1.0
     schedule = data["schedule"]
     assert len(schedule["rows"]) == 5 and schedule["span_seconds"] == 10.0  # the 7 s songs looped to 20 s
     assert {r["first"] for r in schedule["rows"]} == set(AISTPP_GENRES.codes[:5])
@@ -187,9 +232,12 @@ def test_benchmark_end_to_end(prompt_checkpoint, capsys):
         f"style_acc={data['raw']['genre_acc']:.3f} text_acc={data['raw']['text_acc']:.3f} "
         f"genre_speed_within_30pct={data['raw']['genre_speed_within']}/10 "
         f"speed_spearman={data['raw']['speed_spearman']:.3f} modifiers={data['raw']['modifiers_right']:.3f} "
-        f"gt_acc={data['gt_acc']:.3f}"
+        f"gt_acc={data['gt_acc']:.3f} turning={data['raw']['attributes_right']['turning']:.3f} "
+        f"attribute_genre_acc={data['raw']['attribute_genre_acc']:.3f}"
     )
     assert printed[-1] == expected
+    assert data["attribute_wordings"] == "wordings.yaml"
+    assert any(line.startswith("attribute pairs right, turning") for line in printed)
     assert any(line.startswith("confusion matrix, raw") for line in printed)
 
 
