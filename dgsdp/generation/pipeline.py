@@ -486,7 +486,11 @@ class DanceGenerator:
             path = self.text_choice.descriptions or embedder.prompts_file
             per_genre = load_prompts(resolve_prompts_file(path), embedder.vocab)
             names = [n.lower() for n in embedder.vocab.names]
-            self._router = TextRouter(per_genre, embedder.embed_texts, names)
+            # the movement attributes this model takes (model.movement_channels): no other is read or reported
+            channels = getattr(self.model, "movement_channels", ())
+            self._router = TextRouter(
+                per_genre, embedder.embed_texts, names, movement=[c for c in channels if c != "speed"]
+            )
         return self._router
 
     def _reading_genres(self, embedder: Any, bank: Any) -> torch.Tensor:

@@ -201,7 +201,8 @@ class TextRouter:
     """Reads free text as a genre, an energy, movement attributes and whether it is known (see the module
     docstring), fitted on a run's training descriptions ``per_genre`` (one list per genre, in the vocabulary's order)
     with its text encoder's ``embed`` (texts -> (N, dim)). ``genre_names``: the genres' names, composed with the
-    attribute words (``attributes``: :func:`load_attributes`' form; default the shipped file)."""
+    attribute words (``attributes``: :func:`load_attributes`' form; default the shipped file). ``movement``: the
+    movement attributes to read (default: every one the words name); a model is read for those it takes."""
 
     def __init__(
         self,
@@ -209,12 +210,19 @@ class TextRouter:
         embed: Callable[[list[str]], torch.Tensor],
         genre_names: Sequence[str],
         attributes: dict[str, Any] | None = None,
+        movement: Sequence[str] | None = None,
     ) -> None:
         from sklearn.linear_model import LogisticRegression
 
         if len(per_genre) != len(genre_names) or sum(1 for texts in per_genre if texts) < 2:
             raise ConfigError("the free-text reader needs descriptions of at least two genres")
         attributes = attributes or load_attributes()
+        if movement is not None:  # only the attributes a model takes: each costs its phrases' embeddings to fit
+            unknown = sorted(set(movement) - set(ATTRIBUTES))
+            if unknown:
+                raise ConfigError(f"unknown movement attribute(s) {unknown}; known: {', '.join(ATTRIBUTES)}")
+            kept = {k: v for k, v in (attributes.get("movement") or {}).items() if k in movement}
+            attributes = {**attributes, "movement": kept}
         self.embed = embed
         self.n_genres = len(per_genre)
         self.genre_names = [str(n).lower() for n in genre_names]

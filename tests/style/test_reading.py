@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from dgsdp.errors import ConfigError
 from dgsdp.style.reading import (
     SPEED_SPAN,
     TextReading,
@@ -143,6 +144,22 @@ def test_the_router_reads_movement_attributes_beside_the_energy(router, mover):
     # the energy is read as it was without movement words
     for text in ("frantic house", "lazy break", "house, not frantic"):
         assert mover.read(text)[1] == pytest.approx(router.read(text)[1])
+
+
+def test_a_router_reads_only_the_attributes_it_is_given():
+    """A model is read for the movement channels it takes (the pipeline passes them): the others are neither fitted
+    nor reported; an attribute the reader does not know is one clear error."""
+    level_only = TextRouter(DESCRIPTIONS, bag_of_words, GENRES, {**ATTRIBUTES, **MOVEMENT}, movement=["level"])
+    assert set(level_only.read_attributes("crouched house")) == {"level"}
+    assert level_only.read_attributes("crouched house")["level"] < -0.5
+    assert (
+        TextRouter(DESCRIPTIONS, bag_of_words, GENRES, {**ATTRIBUTES, **MOVEMENT}, movement=[]).read_attributes(
+            "crouched house"
+        )
+        == {}
+    )
+    with pytest.raises(ConfigError, match="unknown movement attribute"):
+        TextRouter(DESCRIPTIONS, bag_of_words, GENRES, ATTRIBUTES, movement=["height"])
 
 
 def test_negated_movement_words_count_against_their_attribute(mover):
