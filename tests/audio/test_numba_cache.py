@@ -59,6 +59,7 @@ def _assert_all_ok(results: list[tuple[int, str]], what: str) -> None:
     assert all("features (240, 35)" in out for _, out in results)
 
 
+@pytest.mark.slow
 def test_processes_started_together_on_an_empty_cache(tmp_path):
     """Four processes 0.6 s apart on an empty NUMBA_CACHE_DIR, each computing an 8 s song's features, then one
     more: all exit 0, and the cache holds librosa's compiled functions and the lock."""
@@ -66,6 +67,41 @@ def test_processes_started_together_on_an_empty_cache(tmp_path):
     _assert_all_ok(_round(cache), "one round")
     assert (cache / "dgsdp-numba.lock").exists()
     assert len(list(cache.rglob("*.nbi"))) >= 10  # indexes of librosa's cached functions, written here
+
+
+def test_a_process_waits_for_the_lock_before_it_touches_the_cache():
+    """While another process holds the cache's lock, a process about to use librosa waits (it says so) and goes on
+    once the lock is released. The crash the lock prevents needs an empty cache and minutes to show: the slow tests
+    start processes together on fresh caches."""
+    import queue
+    import threading
+
+    from filelock import FileLock
+
+    from dgsdp.audio.numba_cache import cache_dir, prepare
+
+    prepare()  # this process fills or loads the cache first, so the child's own work is only loading it
+    folder = cache_dir()
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(folder), "PYTHONPATH": str(REPO), "HF_HUB_OFFLINE": "1"}
+    child = "import logging; logging.basicConfig(level=logging.INFO)\n" + CHILD
+    lines: queue.Queue[str] = queue.Queue()
+    with FileLock(str(folder / "dgsdp-numba.lock")):
+        proc = subprocess.Popen([sys.executable, "-c", child, "5"], env=env, stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True)  # fmt: skip
+        threading.Thread(target=lambda: [lines.put(line) for line in proc.stdout], daemon=True).start()
+        seen, deadline = [], time.monotonic() + 120
+        while not any("waiting for another process" in line for line in seen) and time.monotonic() < deadline:
+            try:
+                seen.append(lines.get(timeout=1))
+            except queue.Empty:
+                assert proc.poll() is None, f"the child ended while the lock was held: {''.join(seen)[-1500:]}"
+        assert any("waiting for another process" in line for line in seen), "".join(seen)[-1500:]
+        assert proc.poll() is None  # still waiting: nothing computed under another process's lock
+    assert proc.wait(timeout=300) == 0
+    time.sleep(0.2)  # the reader thread's last lines
+    while not lines.empty():
+        seen.append(lines.get())
+    assert any("features (240, 35)" in line for line in seen), "".join(seen)[-1500:]
 
 
 @pytest.mark.slow
