@@ -271,6 +271,19 @@ class DanceDenoiser(nn.Module):
             return checkpoint(layer, *args, use_reentrant=False)
         return layer(*args)
 
+    def style_parameters(self) -> list[nn.Parameter]:
+        """The parameters of the style's ways in: Style Modulation's projections, the null style and the style's
+        FiLM and concatenation projections (``optimizer.style_lr_scale`` trains them at their own rate)."""
+        parts: list[nn.Module | nn.Parameter | None] = [self.modulations, self.null_style, self.style_film_proj,
+                                                        self.style_concat_proj]  # fmt: skip
+        out: list[nn.Parameter] = []
+        for part in parts:
+            if isinstance(part, nn.Parameter):
+                out.append(part)
+            elif part is not None:
+                out.extend(part.parameters())
+        return out
+
     def set_style_statistics(self, vectors: torch.Tensor) -> None:
         """Centre and scale style vectors by these (the training style bank, (N, ds)) from now on; a no-op unless
         the model was built with ``style_standardize``. The statistics are buffers: checkpoints keep them."""

@@ -129,7 +129,8 @@ class RunSpec:
         return build(self.loss, "loss", where="loss", source=source)
 
     def build_optimizer(self, params: Any) -> Any:
-        node = {k: v for k, v in self.optimizer.items() if k != "schedule"}  # the learning rate's schedule: apart
+        # the learning rate's schedule and the style's rate are the training module's, not the optimiser's
+        node = {k: v for k, v in self.optimizer.items() if k not in ("schedule", "style_lr_scale")}
         factory = build(node, "optimizer", where="optimizer")
         return factory(params)
 

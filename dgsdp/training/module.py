@@ -11,6 +11,7 @@ import lightning as L
 import torch
 
 from dgsdp.diffusion import dance_loss
+from dgsdp.errors import ConfigError
 from dgsdp.registry import Source
 from dgsdp.trained.model import CHECKPOINT_FORMAT, TrainedModel, plain
 from dgsdp.trained.spec import RunSpec
@@ -138,13 +139,37 @@ class DanceDiffusion(TrainedModel, L.LightningModule):
     def configure_optimizers(self) -> Any:
         """The run's optimiser, with a per-step learning-rate scheduler when ``optimizer.schedule`` asks for one
         (:mod:`dgsdp.training.lr_schedule`; it spans ``trainer.max_steps``)."""
-        optimizer = self.spec.build_optimizer(self.denoiser.parameters())
+        optimizer = self.spec.build_optimizer(self._parameter_groups())
         schedule = LRSchedule.from_config(self.spec.optimizer.get("schedule"))
         if schedule.constant:
             return optimizer
         total = self.trainer.max_steps if self._trainer is not None else None
         scheduler = schedule.scheduler(optimizer, total)
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step", "frequency": 1}}
+
+    def _parameter_groups(self) -> Any:
+        """The denoiser's parameters, or with ``optimizer.style_lr_scale`` two groups: the style's ways in at that
+        multiple of the learning rate, the rest at it. An optimiser's step moves each weight by about the learning
+        rate whatever its gradient's size, so a projection of small inputs (a text embedding's channels are about
+        0.05 each) changes its output far less per step than the layers around it; the scale makes up for it."""
+        scale = style_lr_scale(self.spec.optimizer)
+        if scale == 1.0:
+            return self.denoiser.parameters()
+        style = {id(p) for p in self.denoiser.style_parameters()}
+        if not style:
+            raise ConfigError("optimizer.style_lr_scale needs a model with style (style=none has no style to train)")
+        rest = [p for p in self.denoiser.parameters() if id(p) not in style]
+        lr = float(self.spec.optimizer["lr"])
+        return [{"params": rest}, {"params": self.denoiser.style_parameters(), "lr": lr * scale}]
+
+
+def style_lr_scale(optimizer: Mapping[str, Any]) -> float:
+    """``optimizer.style_lr_scale`` (default 1): a positive number, else a ConfigError."""
+    value = optimizer.get("style_lr_scale", 1.0)
+    value = 1.0 if value is None else value
+    if isinstance(value, bool) or not isinstance(value, int | float) or not (0 < float(value) < 1e4):
+        raise ConfigError(f"optimizer.style_lr_scale must be a positive number (1: the model's rate), got {value!r}")
+    return float(value)
 
 
 def wandb_run_id(checkpoint: Mapping[str, Any]) -> str | None:
