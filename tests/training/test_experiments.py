@@ -15,27 +15,29 @@ EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
 # row: (velocity loss weight, audio.rhythm_only, audio.beat_phase, steps, pause loss weight, data.tempo_augment,
 # data.synthetic.offbeats, model.aligned_music, model.dropout, loss.root, style.prompts_file,
 # generation.style_text_temperature and style_text_reading: how generate.py reads free text with the row's model by
-# default, model.speed_conditioning, optimizer.schedule, model.movement_channels)
+# default, model.speed_conditioning, optimizer.schedule, model.movement_channels, optimizer.style_lr_scale)
 QUICKSTART_ROWS = {
-    "quickstart_row0": (0.0, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, []),
-    "quickstart_row1": (2.964, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, []),
-    "quickstart_row2": (2.964, True, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, []),
-    "quickstart_row3": (2.964, True, True, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, []),
-    "quickstart_row4": (2.964, True, False, 1000, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, []),
-    "quickstart_row5": (2.964, True, False, 1000, 6.0, None, True, False, 0.1, 0.0, None, None, None, False, None, []),
-    "quickstart_row6": (2.964, True, False, 1000, 6.0, [0.8, 1.25], True, False, 0.1, 0.0, None, None, None, False, None, []),
-    "quickstart_row7": (2.964, True, False, 1000, 6.0, None, False, False, 0.1, 0.0, None, None, None, False, None, []),
-    "quickstart_row8": (2.964, True, False, 1000, 6.0, None, True, True, 0.1, 0.0, None, None, None, False, None, []),
-    "quickstart_row9": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 0.0, None, None, None, False, None, []),
-    "quickstart_row10": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False, None, []),
-    "quickstart_row11": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, "aistpp_augmented", 0.02, None, False, None, []),
-    "quickstart_row12": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False, None, []),
-    "quickstart_row13": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, []),
-    "quickstart_row14": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, []),
+    "quickstart_row0": (0.0, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
+    "quickstart_row1": (2.964, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
+    "quickstart_row2": (2.964, True, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
+    "quickstart_row3": (2.964, True, True, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
+    "quickstart_row4": (2.964, True, False, 1000, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
+    "quickstart_row5": (2.964, True, False, 1000, 6.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
+    "quickstart_row6": (2.964, True, False, 1000, 6.0, [0.8, 1.25], True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
+    "quickstart_row7": (2.964, True, False, 1000, 6.0, None, False, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
+    "quickstart_row8": (2.964, True, False, 1000, 6.0, None, True, True, 0.1, 0.0, None, None, None, False, None, [], 1.0),
+    "quickstart_row9": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 0.0, None, None, None, False, None, [], 1.0),
+    "quickstart_row10": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False, None, [], 1.0),
+    "quickstart_row11": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, "aistpp_augmented", 0.02, None, False, None, [], 1.0),
+    "quickstart_row12": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False, None, [], 1.0),
+    "quickstart_row13": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [], 1.0),
+    "quickstart_row14": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [], 1.0),
     "quickstart_row15": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True,
-                         {"warmup_steps": 50, "decay": "cosine", "final_lr_ratio": 0.05}, []),
+                         {"warmup_steps": 50, "decay": "cosine", "final_lr_ratio": 0.05}, [], 1.0),
     "quickstart_row16": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None,
-                         ["speed", "level", "arms", "travel", "turning"]),
+                         ["speed", "level", "arms", "travel", "turning"], 1.0),
+    "quickstart_row17": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [],
+                         10.0),
 }  # fmt: skip
 
 
@@ -47,7 +49,7 @@ def _row(cfg) -> tuple:
         cfg.model.dropout, cfg.loss.root, cfg.style.prompts_file, cfg.generation.style_text_temperature,
         cfg.generation.style_text_reading, cfg.model.speed_conditioning,
         None if cfg.optimizer.get("schedule") is None else dict(cfg.optimizer.schedule),
-        list(cfg.model.movement_channels),
+        list(cfg.model.movement_channels), cfg.optimizer.get("style_lr_scale", 1.0),
     )  # fmt: skip
 
 
