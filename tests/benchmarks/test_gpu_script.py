@@ -12,6 +12,8 @@ def root(tmp_path_factory):
     return generate_synthetic_aistpp(base / "synthetic", seed=0, sequences_per_genre=2, seconds=7.0, num_ignored=0)
 
 
+@pytest.mark.slow  # times both loaders on a generated dataset (about 12 s); run it before a device session
+# (pytest -m slow tests/benchmarks/test_gpu_script.py); the failing-step test runs the same steps and summary
 def test_the_data_step_and_its_summary(root, tmp_path, capsys):
     code = gpu.main(["--device", "cpu", "--data", str(root), "--out", str(tmp_path), "--skip", "training", "train"])
     out = capsys.readouterr().out

@@ -125,6 +125,7 @@ def test_gradients_are_averaged_and_weights_identical_across_ranks(run_a):
         assert len({s["style_bank_id"] for s in steps_of(p)}) == 1
 
 
+@pytest.mark.slow  # a second DDP run (about 25 s of the default suite); the resume itself is tested without DDP
 def test_resumed_ddp_run_continues_exactly(run_a, run_b):
     for a, b in zip(run_a["probe"], run_b["probe"], strict=True):
         later = [s for s in steps_of(a) if s["step"] >= 3]
@@ -147,7 +148,7 @@ def test_resumed_ddp_run_continues_exactly(run_a, run_b):
         assert torch.equal(a_last["state_dict"][key], b_last["state_dict"][key]), key
 
 
-@pytest.mark.parametrize("which", ["run_a", "run_b"])
+@pytest.mark.parametrize("which", ["run_a", pytest.param("run_b", marks=pytest.mark.slow)])
 def test_run_folder_is_written_once(which, request):
     folder = request.getfixturevalue(which)["dir"]
     expected = (

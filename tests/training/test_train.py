@@ -170,6 +170,7 @@ def test_resumed_run_continues_its_wandb_run(tmp_path, tiny_synthetic, monkeypat
     assert _state(resumed["checkpoint"])["logger_run_ids"]["WandbLogger"] == run_id
 
 
+@pytest.mark.slow  # two subprocess jobs (about 14 s); one job's wandb run is tested in the default suite
 def test_two_job_multirun_creates_two_wandb_runs(tmp_path, tiny_synthetic, repo_root):
     sweep = tmp_path / "sweep"
     args = [
