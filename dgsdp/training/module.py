@@ -155,12 +155,12 @@ class DanceDiffusion(TrainedModel, L.LightningModule):
         scale = style_lr_scale(self.spec.optimizer)
         if scale == 1.0:
             return self.denoiser.parameters()
-        style = {id(p) for p in self.denoiser.style_parameters()}
+        style = self.denoiser.style_parameters()
         if not style:
             raise ConfigError("optimizer.style_lr_scale needs a model with style (style=none has no style to train)")
-        rest = [p for p in self.denoiser.parameters() if id(p) not in style]
-        lr = float(self.spec.optimizer["lr"])
-        return [{"params": rest}, {"params": self.denoiser.style_parameters(), "lr": lr * scale}]
+        ids = {id(p) for p in style}
+        rest = [p for p in self.denoiser.parameters() if id(p) not in ids]
+        return [{"params": rest}, {"params": style, "lr": float(self.spec.optimizer["lr"]) * scale}]
 
 
 def style_lr_scale(optimizer: Mapping[str, Any]) -> float:
