@@ -33,7 +33,7 @@ from dgsdp.motion import FloorCleanup, Skeleton, clean_motion
 from dgsdp.resources import home
 from dgsdp.sampling import SamplingSettings
 from dgsdp.style.embeddings import SHIPPED_PROMPTS_DIR, load_prompts, resolve_prompts_file
-from dgsdp.style.reading import TextReading, TextRouter, speed_quantile
+from dgsdp.style.reading import TextReading, TextRouter
 from dgsdp.style.vocab import split_free_text
 from dgsdp.trained import TrainedModel, load_model
 from dgsdp.utils.device import check_cpu_bf16, resolve_device
@@ -455,19 +455,20 @@ class DanceGenerator:
         weights: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, TextReading]:
         """The style vector with the movement channels a model conditioned on them takes, and the reading with the
-        values asked: each channel at the quantile the reading asks (the speed: its energy's; another attribute: its
-        score's; 0.5 when it says nothing) of a genre's training windows, of the ``weights``' blend of the genres',
-        or else the training windows' medians; other models: unchanged."""
+        values asked (:meth:`~dgsdp.trained.TrainedModel.asked_movement`: each channel at the quantile the reading
+        asks, the speed by its energy, another attribute by its score and at least ``ATTRIBUTE_REACH`` of all
+        windows' spread from the median; the median when it says nothing) of a genre's training windows, of the
+        ``weights``' blend of the genres', or else the training windows' medians; other models: unchanged."""
         model = self.model
         channels = getattr(model, "movement_channels", ())
         if not channels:
             return vector, reading
         scores = {"speed": reading.energy, **dict(reading.attributes)}
-        quantiles = torch.tensor([speed_quantile(scores.get(name, 0.0)) for name in channels])
+        asked = torch.tensor([scores.get(name, 0.0) for name in channels]).nan_to_num(0.0)
         if genre is not None:
-            values = model.genre_movement(torch.tensor([genre]), quantiles[None])[0]
+            values = model.asked_movement(torch.tensor([genre]), asked)[0]
         elif weights is not None:
-            table = model.genre_movement(torch.arange(len(weights)), quantiles.expand(len(weights), -1))
+            table = model.asked_movement(torch.arange(len(weights)), asked)
             values = (weights.to(table) @ table) / weights.sum().clamp_min(1e-12)
         else:
             values = torch.stack([getattr(model, f"{name}_reference").float() for name in channels])

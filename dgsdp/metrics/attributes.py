@@ -11,10 +11,15 @@ or per step between frames, so that a window's value is the mean over its frames
 - **arms** (per frame): how high the wrists are against the shoulders, in arm lengths (the mean of both sides of
   wrist height minus shoulder height over shoulder-to-wrist length at rest): -1 arms hanging, 0 at shoulder
   height, +1 straight overhead.
-- **travel** (m/s, per step): the pelvis's speed over the floor (its horizontal movement; a sway counts as well as
-  a walk).
-- **turning** (rad/s, per step): how fast the body's facing turns, the absolute yaw rate of the line between the
-  hips (the pelvis's left-right axis) seen from above.
+- **travel** (m/s, per step): how fast the pelvis gets across the floor, its horizontal distance over the half
+  second around the step (:data:`SPAN_SECONDS`) per second: a walk counts, a sway back and forth within the half
+  second hardly does.
+- **turning** (rad/s, per step): how fast the body's facing turns, the absolute change over the half second around
+  the step, per second, of the yaw of the line between the hips (the pelvis's left-right axis) seen from above.
+
+Travel and turning are read over half a second, not frame to frame: a frame-to-frame rate adds up every
+frame's small jitter (a 1000-step model's hips wobble by about a hundredth of a radian a frame, 0.3 rad/s of
+"turning" in genres whose training dances never turn), while over half a second a wobble cancels and a turn adds up.
 
 Speed, travel and turning are rates: a window played ``rate`` times faster measures ``rate`` times more
 (:data:`RATE_MEASURES`).
@@ -22,7 +27,6 @@ Speed, travel and turning are rates: a window played ``rate`` times faster measu
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -33,6 +37,8 @@ from dgsdp.motion import Skeleton, smpl24_layout
 
 MEASURES = ("speed", "level", "arms", "travel", "turning")
 """The movement attributes, in the order a model's style vector carries them (:mod:`dgsdp.style.movement`)."""
+SPAN_SECONDS = 0.5
+"""Travel and turning are read over this span of time around each step (15 steps at 30 FPS)."""
 RATE_MEASURES = frozenset({"speed", "travel", "turning"})
 """The measures given per step between frames (T - 1 values) that scale with the tempo; the others are per frame."""
 
@@ -88,11 +94,24 @@ def arm_heights(joints: np.ndarray, skeleton: Skeleton) -> np.ndarray:
     return np.mean(sides, axis=0)
 
 
+def _span_rates(values: np.ndarray, fps: float) -> np.ndarray:
+    """Per step between frames (T-1,): how far ``values`` (T,) or (T, D) get (the norm of the change) over the
+    :data:`SPAN_SECONDS` centred on the step, per second; near the ends the span is cut short (two frames: their
+    one step)."""
+    n = len(values)
+    half = max(1, round(SPAN_SECONDS * fps / 2))
+    step = np.arange(n - 1)
+    start, end = np.maximum(step + 1 - half, 0), np.minimum(step + half, n - 1)
+    change = values[end] - values[start]
+    distance = np.linalg.norm(change, axis=-1) if change.ndim > 1 else np.abs(change)
+    return distance * fps / (end - start)
+
+
 def travel_speeds(joints: np.ndarray, skeleton: Skeleton, fps: float = 30) -> np.ndarray:
-    """The pelvis's horizontal speed (m/s) over each step between frames, (T-1,)."""
+    """How fast the pelvis gets across the floor (m/s): its horizontal distance over the half second around each
+    step between frames (:data:`SPAN_SECONDS`), per second, (T-1,)."""
     arr = check_skeleton_joints(joints, skeleton, min_frames=2)
-    floor_xy = arr[:, skeleton.joint_index("pelvis"), :2]
-    return np.linalg.norm(np.diff(floor_xy, axis=0), axis=-1) * fps
+    return _span_rates(arr[:, skeleton.joint_index("pelvis"), :2], fps)
 
 
 def facing_yaw(joints: np.ndarray, skeleton: Skeleton) -> np.ndarray:
@@ -103,11 +122,11 @@ def facing_yaw(joints: np.ndarray, skeleton: Skeleton) -> np.ndarray:
 
 
 def turning_rates(joints: np.ndarray, skeleton: Skeleton, fps: float = 30) -> np.ndarray:
-    """How fast the facing turns, the absolute yaw change (rad/s) of each step between frames, (T-1,); a step
-    turns by at most half a turn (a larger change is read the shorter way round)."""
+    """How fast the facing turns (rad/s): the absolute yaw change over the half second around each step between
+    frames (:data:`SPAN_SECONDS`), per second, (T-1,); from one frame to the next the facing turns by at most half
+    a turn (a larger change is read the shorter way round)."""
     yaw = facing_yaw(check_skeleton_joints(joints, skeleton, min_frames=2), skeleton)
-    step = np.diff(yaw)
-    return np.abs((step + math.pi) % (2 * math.pi) - math.pi) * fps
+    return _span_rates(np.unwrap(yaw), fps)
 
 
 def movement_series(

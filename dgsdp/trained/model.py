@@ -30,7 +30,7 @@ from dgsdp.registry import Source
 from dgsdp.safety.checkpoint_file import load_checkpoint, reading
 from dgsdp.sampling import Sampler
 from dgsdp.style.embeddings import StyleBank
-from dgsdp.style.movement import movement_channels
+from dgsdp.style.movement import ATTRIBUTE_REACH, movement_channels
 from dgsdp.trained.spec import RunSpec
 
 CHECKPOINT_FORMAT = 2
@@ -147,6 +147,27 @@ class TrainedModel(nn.Module):
         q = (q[:, None] if q.ndim == 1 else q).expand(*genre.shape, len(self.movement_channels))
         columns = [self._at_quantile(name, genre, q[..., k]) for k, name in enumerate(self.movement_channels)]
         return torch.stack(columns, dim=-1)
+
+    def asked_movement(self, genre: torch.Tensor, scores: torch.Tensor) -> torch.Tensor:
+        """Movement values (B, C) a reading's scores (B, C) or (C,), -1 to +1 in the model's channels' order (speed:
+        the energy), ask of each genre (B,): the genre's quantile 0.5 + ``SPEED_SPAN`` x score; for the attributes
+        but speed, at least ``ATTRIBUTE_REACH`` x |score| of all windows' spread from the genre's median, toward
+        the score's sign, and within the lowest and highest value of any genre's windows."""
+        from dgsdp.style.reading import SPEED_SPAN  # the reader's scale (the reader does not import the model)
+
+        scores = torch.as_tensor(scores, dtype=torch.float32, device=genre.device).clamp(-1, 1)
+        scores = scores.expand(*genre.shape, len(self.movement_channels))
+        values = self.genre_movement(genre, 0.5 + SPEED_SPAN * scores)
+        medians = self.genre_movement(genre, 0.5)
+        for k, name in enumerate(self.movement_channels):
+            if name == "speed":
+                continue
+            score, table = scores[..., k], self.quantile_table(name).to(values)
+            reach = ATTRIBUTE_REACH * score.abs() * getattr(self, f"{name}_spread").to(values)
+            shift = torch.sign(score) * torch.maximum((values[..., k] - medians[..., k]).abs(), reach)
+            low, high = table[:, 0].nan_to_num(math.inf).min(), table[:, -1].nan_to_num(-math.inf).max()
+            values[..., k] = torch.minimum(torch.maximum(medians[..., k] + shift, low), high)
+        return values
 
     def _at_quantile(self, name: str, genre: torch.Tensor, quantile: torch.Tensor) -> torch.Tensor:
         table = self.quantile_table(name).to(genre.device)

@@ -73,6 +73,28 @@ def test_turning_is_the_absolute_yaw_rate_of_the_hips(omega):
     np.testing.assert_allclose(at.turning_rates(joints, SMPL24, fps=30), abs(omega), atol=1e-9)
 
 
+def test_travel_and_turning_are_read_over_half_a_second_so_jitter_cancels():
+    # a standing body whose pelvis and facing jitter every frame (1 cm, 0.01 rad back and forth): frame to frame that
+    # reads 0.3 m/s and 0.3 rad/s; over the half second (15 steps, an odd number of flips) it reads a thirtieth
+    n = 61
+    flip = np.where(np.arange(n) % 2 == 0, 0.5, -0.5)
+    joints = still(n)
+    joints[:, 0, 0] = 0.01 * flip
+    yaw = 0.4 + 0.01 * flip
+    joints[:, 1, :2] = np.stack([np.cos(yaw), np.sin(yaw)], -1) * 0.1
+    joints[:, 2, :2] = -joints[:, 1, :2]
+    assert at.SPAN_SECONDS == 0.5
+    inner = slice(8, -8)  # steps whose half second lies within the dance
+    np.testing.assert_allclose(at.travel_speeds(joints, SMPL24, fps=30)[inner], 0.01 * 30 / 15, atol=1e-12)
+    np.testing.assert_allclose(at.turning_rates(joints, SMPL24, fps=30)[inner], 0.01 * 30 / 15, atol=1e-6)
+    # near the ends the span is cut short: two frames are read over their one step
+    assert at.travel_speeds(joints[:2], SMPL24, fps=30)[0] == pytest.approx(0.3)
+    # a walk at 0.6 m/s with the same jitter reads 0.6 (within the jitter's thirtieth)
+    joints[:, 0, 0] += np.arange(n) * 0.02
+    np.testing.assert_allclose(at.travel_speeds(joints, SMPL24, fps=30)[inner], 0.6, atol=0.021)
+    assert len(at.turning_rates(joints, SMPL24)) == n - 1
+
+
 def test_facing_still_does_not_turn_and_a_dance_averages_its_series():
     joints = still(31)
     joints[:, 1, 0], joints[:, 2, 0] = 0.1, -0.1

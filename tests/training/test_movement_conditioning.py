@@ -89,10 +89,40 @@ FEW_WORDS = {
 }  # fmt: skip
 
 
+def test_words_ask_an_attribute_beyond_a_genre_that_hardly_varies():
+    from dgsdp.style.movement import ATTRIBUTE_REACH
+    from dgsdp.style.reading import SPEED_SPAN
+    from dgsdp.trained import RunSpec
+    from dgsdp.training import DanceDiffusion
+
+    spec = RunSpec.from_groups(style_dim=4, style_bank_size=4, n_genres=2, d_model=16, n_layers=1, n_heads=2,
+                               ff_dim=32, movement_channels=["speed", "turning"])  # fmt: skip
+    model = DanceDiffusion(spec)
+    steps = torch.linspace(0, 1, SPEED_QUANTILES)
+    speed = torch.stack([0.2 + 0.4 * steps, 0.5 + 1.0 * steps])  # genre 0: 0.2..0.6 m/s, genre 1: 0.5..1.5
+    turning = torch.stack([0.001 + 0.009 * steps, 0.1 + 2.9 * steps])  # genre 0 hardly turns, genre 1 up to 3 rad/s
+    model.set_movement_statistics(torch.stack([speed, turning]), [0.5, 0.02], [1.0, 0.8])
+    both = torch.tensor([0, 1])
+    # nothing asked: each genre's medians
+    torch.testing.assert_close(model.asked_movement(both, torch.zeros(2)), model.genre_movement(both))
+    # speed: the genre's own quantile; turning for genre 1: its own quantile, farther than the reach
+    at = 0.5 + SPEED_SPAN
+    full = model.asked_movement(both, torch.tensor([1.0, 1.0]))
+    torch.testing.assert_close(full[:, 0], torch.tensor([0.2 + 0.4 * at, 0.5 + 1.0 * at]))
+    assert float(full[1, 1]) == pytest.approx(0.1 + 2.9 * at)
+    # turning for genre 0: its 90th percentile (0.0091) asks no turn; the word asks the reach of all windows' spread
+    median0 = 0.001 + 0.009 * 0.5
+    assert float(full[0, 1]) == pytest.approx(median0 + ATTRIBUTE_REACH * 0.8)
+    half = model.asked_movement(both, torch.tensor([0.0, 0.5]))
+    assert float(half[0, 1]) == pytest.approx(median0 + 0.5 * ATTRIBUTE_REACH * 0.8)
+    # less turning: never below the lowest value of any genre's windows
+    assert float(model.asked_movement(both, torch.tensor([0.0, -1.0]))[0, 1]) == pytest.approx(0.001)
+
+
 def test_a_run_records_its_movement_and_generation_asks_for_it(tmp_path, tiny_synthetic):
     from dgsdp.generation import DanceGenerator
     from dgsdp.style.embeddings import load_prompts
-    from dgsdp.style.reading import TextRouter, speed_quantile
+    from dgsdp.style.reading import TextRouter
     from dgsdp.trained import load_model
 
     _, result = run(tmp_path, tiny_synthetic, "style=prompt", f"model.movement_channels={ALL}",
@@ -137,10 +167,9 @@ def test_a_run_records_its_movement_and_generation_asks_for_it(tmp_path, tiny_sy
     router = gen.router()  # the few words still tell the ends apart around a genre
     assert router.read_attributes("krump, crouched low")["level"] < router.read_attributes("krump, upright")["level"]
     g = gen.embedder().vocab.index(reading.genre)
-    quantiles = torch.tensor(
-        [[speed_quantile(reading.energy), *(speed_quantile(scores[n]) for n in MOVEMENT_CHANNELS[1:])]]
-    )
-    asked = model.genre_movement(torch.tensor([g]), quantiles)[0]
+    asked = model.asked_movement(
+        torch.tensor([g]), torch.tensor([reading.energy, *(scores[n] for n in MOVEMENT_CHANNELS[1:])])
+    )[0]
     assert torch.allclose(vector[ds:], model.movement_encoding(asked), atol=1e-5)
     assert dict(reading.movement)["level"] == pytest.approx(float(asked[1]))
     assert reading.describe().endswith("; " + reading.describe_attributes())
