@@ -464,7 +464,7 @@ class DanceGenerator:
         if not channels:
             return vector, reading
         scores = {"speed": reading.energy, **dict(reading.attributes)}
-        asked = torch.tensor([scores.get(name, 0.0) for name in channels]).nan_to_num(0.0)
+        asked = torch.tensor([scores.get(name, 0.0) for name in channels])
         if genre is not None:
             values = model.asked_movement(torch.tensor([genre]), asked)[0]
         elif weights is not None:

@@ -32,7 +32,6 @@ lists the style benchmark measures with):
 
 from __future__ import annotations
 
-import math
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -359,12 +358,12 @@ class _Scale:
         return float(np.clip(score, -1.0, 1.0))
 
 
-def speed_quantile(energy: float) -> float:
-    """The quantile of a genre's training speeds an energy (-1 to +1) asks for; of a movement attribute's training
-    values, its score."""
-    if not math.isfinite(energy):
-        return 0.5
-    return 0.5 + SPEED_SPAN * max(-1.0, min(1.0, energy))
+def speed_quantile(energy: float | torch.Tensor) -> float | torch.Tensor:
+    """The quantile of a genre's training speeds an energy (-1 to +1, clamped; not finite: 0) asks for; of a
+    movement attribute's training values, its score. A float for a float, a tensor for a tensor of scores."""
+    scores = torch.as_tensor(energy, dtype=energy.dtype if isinstance(energy, torch.Tensor) else torch.float64)
+    quantile = 0.5 + SPEED_SPAN * scores.nan_to_num(0.0, posinf=0.0, neginf=0.0).clamp(-1.0, 1.0)
+    return quantile if isinstance(energy, torch.Tensor) else float(quantile)
 
 
 __all__ = [

@@ -150,14 +150,16 @@ class TrainedModel(nn.Module):
 
     def asked_movement(self, genre: torch.Tensor, scores: torch.Tensor) -> torch.Tensor:
         """Movement values (B, C) a reading's scores (B, C) or (C,), -1 to +1 in the model's channels' order (speed:
-        the energy), ask of each genre (B,): the genre's quantile 0.5 + ``SPEED_SPAN`` x score; for the attributes
-        but speed, at least ``ATTRIBUTE_REACH`` x |score| of all windows' spread from the genre's median, toward
-        the score's sign, and within the lowest and highest value of any genre's windows."""
-        from dgsdp.style.reading import SPEED_SPAN  # the reader's scale (the reader does not import the model)
+        the energy; not finite: 0), ask of each genre (B,): the genre's quantile the score asks
+        (:func:`~dgsdp.style.reading.speed_quantile`); for the attributes but speed, at least ``ATTRIBUTE_REACH`` x
+        |score| of all windows' spread from the genre's median, toward the score's sign, and within the lowest and
+        highest value of any genre's windows."""
+        from dgsdp.style.reading import speed_quantile  # the reader's scale (the reader does not import the model)
 
-        scores = torch.as_tensor(scores, dtype=torch.float32, device=genre.device).clamp(-1, 1)
+        scores = torch.as_tensor(scores, dtype=torch.float32, device=genre.device)
+        scores = scores.nan_to_num(0.0, posinf=0.0, neginf=0.0).clamp(-1, 1)
         scores = scores.expand(*genre.shape, len(self.movement_channels))
-        values = self.genre_movement(genre, 0.5 + SPEED_SPAN * scores)
+        values = self.genre_movement(genre, speed_quantile(scores))
         medians = self.genre_movement(genre, 0.5)
         for k, name in enumerate(self.movement_channels):
             if name == "speed":
