@@ -43,8 +43,21 @@ class GaussianDiffusion(nn.Module):
         cosine_s: float = 0.008,
         max_beta: float = 0.999,
         clip_x0: bool | float = 1.5,
+        timesteps: str = "uniform",
+        timestep_mean: float = 0.0,
+        timestep_std: float = 1.0,
     ) -> None:
         super().__init__()
+        if timesteps not in ("uniform", "logit_normal"):
+            raise ValueError(f"unknown timestep sampling {timesteps!r}; use 'uniform' or 'logit_normal'")
+        if not float(timestep_std) > 0:
+            raise ValueError(f"timestep_std must be positive, got {timestep_std!r}")
+        # training draws each window's step uniformly (EDGE), or t / num_steps = sigmoid(N(mean, std)) (the
+        # logit-normal of Esser et al. 2024, SD3): more of the steps where the noise is neither small nor total,
+        # and with mean > 0 more of the noisy ones, where a dance's genre is decided
+        self.timesteps = timesteps
+        self.timestep_mean = float(timestep_mean)
+        self.timestep_std = float(timestep_std)
         if schedule == "cosine":
             betas = cosine_betas(num_steps, cosine_s, max_beta)
         elif schedule == "linear":
@@ -81,7 +94,10 @@ class GaussianDiffusion(nn.Module):
     def sample_timesteps(
         self, batch: int, device: torch.device, generator: torch.Generator | None = None
     ) -> torch.Tensor:
-        return torch.randint(0, self.num_steps, (batch,), device=device, generator=generator)
+        if self.timesteps == "uniform":
+            return torch.randint(0, self.num_steps, (batch,), device=device, generator=generator)
+        z = torch.randn(batch, device=device, generator=generator) * self.timestep_std + self.timestep_mean
+        return (torch.sigmoid(z) * self.num_steps).long().clamp_(0, self.num_steps - 1)
 
     def q_sample(self, x0: torch.Tensor, t: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
         """Noise x0 (B, ...) to step t (B,): sqrt(abar) x0 + sqrt(1 - abar) noise."""

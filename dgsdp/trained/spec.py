@@ -92,6 +92,9 @@ class RunSpec:
     skeleton: Skeleton = SMPL24  # the motion's skeleton: the pose vector has skeleton.pose_dim channels
 
     def __post_init__(self) -> None:
+        if self.diffusion.get("_target_") == "dgsdp.diffusion.GaussianDiffusion":
+            for key, value in (("timesteps", "uniform"), ("timestep_mean", 0.0), ("timestep_std", 1.0)):
+                self.diffusion.setdefault(key, value)  # runs from before this was a setting drew them uniformly
         if not 0.0 <= self.ema_decay < 1.0:
             raise ConfigError(f"ema_decay must lie in [0, 1), got {self.ema_decay}")
         if self.fps <= 0 or self.window_frames <= 0:

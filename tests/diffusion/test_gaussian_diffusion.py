@@ -1,6 +1,8 @@
 """GaussianDiffusion against closed forms computed here in numpy float64 (Nichol & Dhariwal's cosine schedule,
 DDPM's forward marginal and posterior, DDIM's update)."""
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -212,3 +214,27 @@ def test_x0_clamp_bound(setting, bound):
 def test_x0_clamp_bound_must_be_positive():
     with pytest.raises(ValueError, match="positive bound"):
         GaussianDiffusion(num_steps=10, clip_x0=0.0)
+
+
+def test_uniform_timesteps_are_the_draws_of_randint():
+    """The default draws exactly what training drew before the sampling was a setting (same checkpoints)."""
+    drawn = GaussianDiffusion().sample_timesteps(64, torch.device("cpu"), torch.Generator().manual_seed(3))
+    assert torch.equal(drawn, torch.randint(0, T, (64,), generator=torch.Generator().manual_seed(3)))
+
+
+@pytest.mark.parametrize(("mean", "std"), [(0.0, 1.0), (0.7, 0.5)])
+def test_logit_normal_timesteps_follow_their_distribution(mean, std):
+    """P(t <= k) = P(sigmoid(z) < (k + 1) / T) = Phi((logit((k + 1) / T) - mean) / std), z ~ N(mean, std)."""
+    d = GaussianDiffusion(timesteps="logit_normal", timestep_mean=mean, timestep_std=std)
+    t = d.sample_timesteps(200_000, torch.device("cpu"), torch.Generator().manual_seed(0)).numpy()
+    assert t.dtype == np.int64 and t.min() >= 0 and t.max() <= T - 1
+    for k in (49, 249, 499, 749, 949):
+        u = (k + 1) / T
+        expected = 0.5 * (1 + math.erf((math.log(u / (1 - u)) - mean) / (std * math.sqrt(2))))
+        assert abs((t <= k).mean() - expected) < 0.005, k
+
+
+@pytest.mark.parametrize("kwargs", [{"timesteps": "lognormal"}, {"timesteps": "logit_normal", "timestep_std": 0.0}])
+def test_bad_timestep_sampling_is_refused(kwargs):
+    with pytest.raises(ValueError, match="timestep"):
+        GaussianDiffusion(**kwargs)
