@@ -55,7 +55,9 @@ def _data_location(cfg: DictConfig, spec: RunSpec) -> tuple[Path, Path]:
         settings.setdefault("offbeats", False)  # runs stored without the setting were trained before it existed
         if stored and not outdated_synthetic(root, **settings):
             return root, cache
-        local = Path(str(cfg.paths.data_dir)).expanduser() / synthetic_folder(settings["offbeats"])
+        local = Path(str(cfg.paths.data_dir)).expanduser() / synthetic_folder(
+            settings["offbeats"], settings.get("movement_variation", False)
+        )
         if not (local / "motions").is_dir() or outdated_synthetic(local, **settings):
             log.info("regenerating the checkpoint's synthetic dataset in %s", local)
             generate_synthetic_aistpp(local, **settings)

@@ -52,6 +52,7 @@ class SyntheticSettings:
     genres: tuple[str, ...] = GENRE_CODES
     num_ignored: int = 1
     offbeats: bool = True  # off-beat layers in most songs (dgsdp.data.synthetic_music); False: the data before them
+    movement_variation: bool = False  # each eight-count block travels, turns and sinks its own amount (within a genre)
     generator_version: int = GENERATOR_VERSION
 
     def validate(self) -> None:
@@ -123,12 +124,16 @@ def _manifest_matches(out_dir: Path, settings: SyntheticSettings) -> bool:
     except (OSError, ValueError, KeyError, TypeError):
         return False
     found.setdefault("offbeats", False)  # written before the off-beat layers existed: the same bytes as without
+    found.setdefault("movement_variation", False)  # written before the option existed: the same bytes as without
     return found == json.loads(json.dumps(asdict(settings)))
 
 
-def synthetic_folder(offbeats: bool = True) -> str:
-    """Name of the synthetic dataset's folder under the data folder: ``synthetic``, or ``synthetic_no_offbeats``
-    for the data before the off-beat layers (quick-start row 7 and older checkpoints)."""
+def synthetic_folder(offbeats: bool = True, movement_variation: bool = False) -> str:
+    """Name of the synthetic dataset's folder under the data folder: ``synthetic``, ``synthetic_no_offbeats`` for
+    the data before the off-beat layers (quick-start row 7 and older checkpoints), ``synthetic_varied`` with each
+    block's own travel, turning and level (quick-start row 18)."""
+    if movement_variation:
+        return "synthetic_varied" if offbeats else "synthetic_varied_no_offbeats"
     return "synthetic" if offbeats else "synthetic_no_offbeats"
 
 
@@ -144,7 +149,12 @@ def outdated_synthetic(out_dir: str | Path, **settings: Any) -> bool:
 def _settings(genres: tuple[str, ...] | list[str] | None = None, **settings: Any) -> SyntheticSettings:
     """The settings for :func:`generate_synthetic_aistpp`'s keywords (the dataclass's defaults for the others)."""
     chosen = SyntheticSettings(genres=tuple(genres) if genres is not None else GENRE_CODES, **settings)
-    return replace(chosen, seconds=float(chosen.seconds), offbeats=bool(chosen.offbeats))
+    return replace(
+        chosen,
+        seconds=float(chosen.seconds),
+        offbeats=bool(chosen.offbeats),
+        movement_variation=bool(chosen.movement_variation),
+    )
 
 
 def check_output_folder(out_dir: Path, manifest: str = MANIFEST) -> None:
@@ -179,6 +189,7 @@ def generate_synthetic_aistpp(
     genres: tuple[str, ...] | list[str] | None = None,
     num_ignored: int = 1,
     offbeats: bool = True,
+    movement_variation: bool = False,
     overwrite: bool = False,
     verbose: bool = False,
 ) -> Path:
@@ -189,10 +200,13 @@ def generate_synthetic_aistpp(
     x 16 s, one extra ignored take) takes seconds to make. The wavs are 44.1 kHz so that a beat tracker's
     tempo grid (hop 512) resolves the tempi to within about 1 BPM. ``offbeats``: most songs get a hit halfway
     between the beats, as real songs do (False: the songs of the dataset before that layer, byte for byte).
+    ``movement_variation``: each eight-count block of a dance travels, turns and sinks by its own amount around
+    its genre's usual (:func:`dgsdp.data.synthetic_motion.draw_variation`), so that these vary within a genre; the
+    music and everything else stay the same (False: the dances of the dataset before the option, byte for byte).
     """
     settings = _settings(
         genres, seed=seed, sequences_per_genre=sequences_per_genre, seconds=seconds, sample_rate_hz=sample_rate_hz,
-        num_ignored=num_ignored, offbeats=offbeats,
+        num_ignored=num_ignored, offbeats=offbeats, movement_variation=movement_variation,
     )  # fmt: skip
     settings.validate()
     out_dir = Path(out_dir)
@@ -225,7 +239,10 @@ def generate_synthetic_aistpp(
     sequences: dict[str, dict] = {}
     for plan in plans:
         rng = item_rng(settings.seed, plan.name)
-        poses, trans_m = synthesize_dance(plan.genre, beats[plan.music_id], num_frames, rng=rng, basic=plan.basic)
+        variation_rng = item_rng(settings.seed, f"{plan.name}/movement") if settings.movement_variation else None
+        poses, trans_m = synthesize_dance(
+            plan.genre, beats[plan.music_id], num_frames, rng=rng, basic=plan.basic, variation_rng=variation_rng
+        )
         loss = float(rng.uniform(0.5, 2.0))
         if plan.ignored:  # a failed fit: jittering joints, a large fitting loss
             poses = poses + rng.normal(0.0, 0.15, poses.shape)
@@ -298,6 +315,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--no-offbeats", action="store_true", help="no off-beat layers in the songs (the data before them)"
     )
+    parser.add_argument(
+        "--movement-variation",
+        action="store_true",
+        help="each eight-count block travels, turns and sinks its own amount (these vary within a genre)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="generate even if a matching dataset exists")
     parser.add_argument("--verbose", action="store_true")
     args = parser.parse_args(argv)
@@ -306,7 +328,8 @@ def main(argv: list[str] | None = None) -> None:
         out = generate_synthetic_aistpp(
             args.out, seed=args.seed, sequences_per_genre=args.sequences_per_genre, seconds=args.seconds,
             sample_rate_hz=args.sample_rate, genres=args.genres, num_ignored=args.num_ignored,
-            offbeats=not args.no_offbeats, overwrite=args.overwrite, verbose=args.verbose,
+            offbeats=not args.no_offbeats, movement_variation=args.movement_variation, overwrite=args.overwrite,
+            verbose=args.verbose,
         )  # fmt: skip
     except (ConfigError, DataError) as err:
         parser.exit(2, f"error: {err}\n")

@@ -5,7 +5,8 @@ the genre's vocabulary, torso and head accents, pelvis level, and footwork (step
 beats every channel follows an ease profile that starts and stops at zero speed, so joint speed falls to a local
 minimum on each beat; the profile's shape (smooth or a sharp hit) is part of the genre. Legs are placed by
 two-bone inverse kinematics on foot targets, so a planted foot stays exactly where it landed and the lowest foot
-joint touches the floor (y = 0) on every frame.
+joint touches the floor (y = 0) on every frame. On request (``variation_rng``) each eight-count block also
+travels, turns and sinks by its own amount around the genre's usual, so that these vary within a genre.
 
 Conventions: SMPL joint order, y-up, metres, the body faces +z at zero yaw and +x is the body's left.
 """
@@ -258,11 +259,64 @@ class Keyframes:
     shrug: np.ndarray  # (K, 2)
 
 
-def _choreograph(style: DanceStyle, num_keys: int, basic: bool, rng: np.random.Generator) -> Keyframes:
+@dataclass(frozen=True)
+class BlockVariation:
+    """How each eight-count block of one dance departs from its genre's usual movement (:func:`draw_variation`).
+
+    travel_m: (N,) body travel per step; step_prob: (N,) chance that a beat moves a foot (a travelling block steps
+    more, as walking does); turn_prob: (N,) chance that a beat turns the body; turn_deg: the turn's size; level_m:
+    (N,) pelvis height offset through the block (negative: lower).
+    """
+
+    travel_m: np.ndarray
+    step_prob: np.ndarray
+    turn_prob: np.ndarray
+    turn_deg: float
+    level_m: np.ndarray
+
+
+VARIATION_SCALES = (0.0, 0.5, 1.0, 2.0, 4.0)
+"""A block's travel and turning are the genre's usual amounts times one of these (drawn alike)."""
+VARIATION_STEP_PROBS = (0.0, 0.6, 0.7, 0.85, 1.0)
+"""A block that travels by the scale of the same place steps on at least this share of its beats: travel comes
+with steps, so a genre that seldom steps would hardly travel at any scale."""
+VARIATION_FLOOR_TRAVEL_M = 0.08
+"""The usual travel per step that the scales multiply in a genre that does not travel (travel_m = 0)."""
+VARIATION_FLOOR_TURN_PROB = 0.06
+"""The usual chance of a turn per beat that the scales multiply in a genre that rarely or never turns."""
+VARIATION_LEVEL_M = (-0.15, 0.03)
+"""A block's pelvis offset is drawn uniformly in this range (m); the legs' reach caps the rise."""
+
+
+def draw_variation(style: DanceStyle, num_keys: int, rng: np.random.Generator) -> BlockVariation:
+    """Per eight-count block, how much the dance travels, turns and how low it is: the genre's usual amounts
+    (at least :data:`VARIATION_FLOOR_TRAVEL_M` and :data:`VARIATION_FLOOR_TURN_PROB`) times a scale drawn from
+    :data:`VARIATION_SCALES` (a travelling block steps more: :data:`VARIATION_STEP_PROBS`), and a level offset
+    drawn in :data:`VARIATION_LEVEL_M`, so that a genre's windows
+    range from on the spot to travelling and from facing ahead to spinning, at several heights."""
+    blocks = -(-num_keys // 8)
+    scales = np.asarray(VARIATION_SCALES)
+    travel_scale = rng.integers(len(scales), size=blocks)
+    travel = max(style.travel_m, VARIATION_FLOOR_TRAVEL_M) * scales[travel_scale]
+    turn = max(style.turn_prob, VARIATION_FLOOR_TURN_PROB) * scales[rng.integers(len(scales), size=blocks)]
+    return BlockVariation(
+        travel_m=travel,
+        step_prob=np.maximum(style.step_prob, np.asarray(VARIATION_STEP_PROBS)[travel_scale]),
+        turn_prob=np.minimum(turn, 0.6),
+        turn_deg=style.turn_deg or 90.0,
+        level_m=rng.uniform(*VARIATION_LEVEL_M, size=blocks),
+    )
+
+
+def _choreograph(
+    style: DanceStyle, num_keys: int, basic: bool, rng: np.random.Generator, variation: BlockVariation | None = None
+) -> Keyframes:
     """Per-beat keyframes for a whole dance: eight-count blocks of arm, torso and foot moves.
 
     ``basic`` (AIST++'s sBM) repeats one block's move throughout; otherwise (sFM) every block draws new moves.
-    Per-dance variation: amplitude, which poses, their order, mirroring, step choices.
+    Per-dance variation: amplitude, which poses, their order, mirroring, step choices. ``variation`` (optional)
+    sets each block's travel, turning and level (:func:`draw_variation`); without it every block has the genre's
+    own, and ``rng`` draws exactly what it drew before the option existed.
     """
     deg = np.pi / 180.0
     k = num_keys
@@ -339,10 +393,15 @@ def _choreograph(style: DanceStyle, num_keys: int, basic: bool, rng: np.random.G
         heel[b] = 0.0
         if style.heel_lift_deg > 0 and rng.random() < 0.5:
             heel[b, int(rng.integers(2))] = style.heel_lift_deg * deg
-        turning = rng.random() < style.turn_prob
+        travel_m, step_prob, turn_prob, turn_deg = style.travel_m, style.step_prob, style.turn_prob, style.turn_deg
+        if variation is not None:
+            block = b // 8
+            travel_m, step_prob = variation.travel_m[block], variation.step_prob[block]
+            turn_prob, turn_deg = variation.turn_prob[block], variation.turn_deg
+        turning = rng.random() < turn_prob
         if turning:
-            yaw[b] = yaw[b - 1] + rng.choice([-1.0, 1.0]) * style.turn_deg * deg
-        if rng.random() >= style.step_prob and not turning:
+            yaw[b] = yaw[b - 1] + rng.choice([-1.0, 1.0]) * turn_deg * deg
+        if rng.random() >= step_prob and not turning:
             weight[b] = 0.5 + rng.uniform(-0.2, 0.2)
             continue
         side = next_foot
@@ -364,8 +423,8 @@ def _choreograph(style: DanceStyle, num_keys: int, basic: bool, rng: np.random.G
                 direction = np.array(style.step_directions[int(rng.integers(len(style.step_directions)))])
                 outward = np.array([1.0 if side == 0 else -1.0, 1.0])
                 offsets[side] = direction * outward * style.step_m * rng.uniform(0.7, 1.2)
-            if style.travel_m > 0:
-                anchor = anchor + _apply(rot, np.array([travel_dir * style.travel_m, 0.0]))
+            if travel_m > 0:
+                anchor = anchor + _apply(rot, np.array([travel_dir * travel_m, 0.0]))
                 if rng.random() < 0.15:
                     travel_dir = -travel_dir
         swing[b - 1, side, 1] = max(swing[b - 1, side, 1], lift)
@@ -383,6 +442,8 @@ def _choreograph(style: DanceStyle, num_keys: int, basic: bool, rng: np.random.G
         if np.linalg.norm(toe_xz[b, other] - anchor) > 0.45:
             anchor = 0.5 * (anchor + toe_xz[b, other])
 
+    if variation is not None:
+        level = level + np.repeat(variation.level_m, 8)[:k]
     bounce = np.full(k - 1, -style.bounce_m * amp)
     pelvis_pitch = np.full(k, style.lean_deg * 0.5 * deg) + rng.normal(0, 2 * deg, k)
     return Keyframes(
@@ -463,12 +524,15 @@ def synthesize_dance(
     basic: bool = False,
     fps: int = FPS,
     timing_jitter_s: float = 0.01,
+    variation_rng: np.random.Generator | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """A dance in ``genre``'s style on the given music beats.
 
     genre: an AIST++ genre code of :data:`DANCE_STYLES`, or a style of one's own. beat_times_s: (B,) beat times
     of the music. Returns SMPL ``poses`` (T, 72) axis-angle (SMPL joint order) and root translation ``trans_m``
-    (T, 3) in metres, y-up, with the lowest foot joint on the floor (y = 0).
+    (T, 3) in metres, y-up, with the lowest foot joint on the floor (y = 0). ``variation_rng`` (optional) draws
+    each eight-count block's travel, turning and level (:func:`draw_variation`) apart from ``rng``, so a dance made
+    without it is the same as before the option existed.
     """
     style = genre if isinstance(genre, DanceStyle) else DANCE_STYLES[genre]
     period_s = float(np.median(np.diff(beat_times_s))) if len(beat_times_s) > 1 else 0.5
@@ -477,7 +541,8 @@ def synthesize_dance(
     first = beat_times_s[0] - period_s * np.ceil((beat_times_s[0] + 1e-9) / period_s)
     key_times = np.arange(first, duration_s + 2 * period_s, period_s)
     key_times[1:-1] += rng.normal(0.0, timing_jitter_s, len(key_times) - 2)
-    keys = _choreograph(style, len(key_times), basic, rng)
+    variation = None if variation_rng is None else draw_variation(style, len(key_times), variation_rng)
+    keys = _choreograph(style, len(key_times), basic, rng, variation)
     line = BeatTimeline(key_times, num_frames, fps)
     body, arms_ease = style.body_ease, style.arm_ease
     offsets = rest_offsets(torch.float64).numpy()

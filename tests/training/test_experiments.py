@@ -15,29 +15,32 @@ EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
 # row: (velocity loss weight, audio.rhythm_only, audio.beat_phase, steps, pause loss weight, data.tempo_augment,
 # data.synthetic.offbeats, model.aligned_music, model.dropout, loss.root, style.prompts_file,
 # generation.style_text_temperature and style_text_reading: how generate.py reads free text with the row's model by
-# default, model.speed_conditioning, optimizer.schedule, model.movement_channels, optimizer.style_lr_scale)
+# default, model.speed_conditioning, optimizer.schedule, model.movement_channels, optimizer.style_lr_scale,
+# data.synthetic.movement_variation)
 QUICKSTART_ROWS = {
-    "quickstart_row0": (0.0, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
-    "quickstart_row1": (2.964, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
-    "quickstart_row2": (2.964, True, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
-    "quickstart_row3": (2.964, True, True, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
-    "quickstart_row4": (2.964, True, False, 1000, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
-    "quickstart_row5": (2.964, True, False, 1000, 6.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
-    "quickstart_row6": (2.964, True, False, 1000, 6.0, [0.8, 1.25], True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
-    "quickstart_row7": (2.964, True, False, 1000, 6.0, None, False, False, 0.1, 0.0, None, None, None, False, None, [], 1.0),
-    "quickstart_row8": (2.964, True, False, 1000, 6.0, None, True, True, 0.1, 0.0, None, None, None, False, None, [], 1.0),
-    "quickstart_row9": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 0.0, None, None, None, False, None, [], 1.0),
-    "quickstart_row10": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False, None, [], 1.0),
-    "quickstart_row11": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, "aistpp_augmented", 0.02, None, False, None, [], 1.0),
-    "quickstart_row12": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False, None, [], 1.0),
-    "quickstart_row13": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [], 1.0),
-    "quickstart_row14": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [], 1.0),
+    "quickstart_row0": (0.0, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
+    "quickstart_row1": (2.964, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
+    "quickstart_row2": (2.964, True, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
+    "quickstart_row3": (2.964, True, True, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
+    "quickstart_row4": (2.964, True, False, 1000, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
+    "quickstart_row5": (2.964, True, False, 1000, 6.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
+    "quickstart_row6": (2.964, True, False, 1000, 6.0, [0.8, 1.25], True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
+    "quickstart_row7": (2.964, True, False, 1000, 6.0, None, False, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
+    "quickstart_row8": (2.964, True, False, 1000, 6.0, None, True, True, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
+    "quickstart_row9": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 0.0, None, None, None, False, None, [], 1.0, False),
+    "quickstart_row10": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False, None, [], 1.0, False),
+    "quickstart_row11": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, "aistpp_augmented", 0.02, None, False, None, [], 1.0, False),
+    "quickstart_row12": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False, None, [], 1.0, False),
+    "quickstart_row13": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [], 1.0, False),
+    "quickstart_row14": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [], 1.0, False),
     "quickstart_row15": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True,
-                         {"warmup_steps": 50, "decay": "cosine", "final_lr_ratio": 0.05}, [], 1.0),
+                         {"warmup_steps": 50, "decay": "cosine", "final_lr_ratio": 0.05}, [], 1.0, False),
     "quickstart_row16": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None,
-                         ["speed", "level", "arms", "travel", "turning"], 1.0),
+                         ["speed", "level", "arms", "travel", "turning"], 1.0, False),
     "quickstart_row17": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [],
-                         10.0),
+                         10.0, False),
+    "quickstart_row18": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None,
+                         ["speed", "level", "arms", "travel", "turning"], 1.0, True),
 }  # fmt: skip
 
 
@@ -50,6 +53,7 @@ def _row(cfg) -> tuple:
         cfg.generation.style_text_reading, cfg.model.speed_conditioning,
         None if cfg.optimizer.get("schedule") is None else dict(cfg.optimizer.schedule),
         list(cfg.model.movement_channels), cfg.optimizer.get("style_lr_scale", 1.0),
+        cfg.data.synthetic.get("movement_variation", False),
     )  # fmt: skip
 
 
@@ -115,9 +119,11 @@ def test_quickstart_rows_change_one_thing_each(name, tmp_path):
 
     cfg = compose_config("train", [f"experiment={name}"], output_dir=tmp_path)
     assert _row(cfg) == QUICKSTART_ROWS[name]
-    # the data without off-beat layers lives in its own folder: rows of one sweep never regenerate each other's
+    # the data without off-beat layers or with movement variation lives in its own folder: rows of one sweep never
+    # regenerate each other's
     default = compose_config("train", [], output_dir=tmp_path).data
-    assert (cfg.data.root == default.root) == cfg.data.synthetic.offbeats
+    own_folder = not cfg.data.synthetic.offbeats or cfg.data.synthetic.get("movement_variation", False)
+    assert (cfg.data.root == default.root) != own_folder
     assert cfg.data.synthetic_root == cfg.data.root
     assert cfg.loss.simple == 1.0 and cfg.loss.fk == 0.0 and cfg.loss.foot == 0.0
     assert (cfg.optimizer.lr, cfg.model.ema_decay) == (1e-3, 0.98)
