@@ -155,7 +155,14 @@ def test_a_checkpoint_trained_on_the_varied_data_gets_it_back_in_its_own_folder(
     from dgsdp.cli.evaluate import _data_location
     from dgsdp.data.synthetic import read_manifest
 
-    stored = {"seed": 0, "sequences_per_genre": 2, "seconds": 2.5, "offbeats": True, "movement_variation": True}
+    stored = {
+        "sequences_per_genre": 2,
+        "seconds": 2.5,
+        "sample_rate_hz": 8000,
+        "offbeats": True,
+        "num_ignored": 0,
+        "movement_variation": True,
+    }
     spec = SimpleNamespace(record={"data": {"root": str(tmp_path / "gone"), "synthetic": stored}})
     cfg = OmegaConf.create({"data": {"root": None}, "paths": {"data_dir": str(tmp_path), "cache_dir": "cache"}})
     root, _ = _data_location(cfg, spec)
