@@ -274,6 +274,15 @@ class BlockVariation:
     turn_deg: float
     level_m: np.ndarray
 
+    @classmethod
+    def usual(cls, style: DanceStyle, num_keys: int) -> BlockVariation:
+        """Every block at the genre's own amounts: the dance without variation."""
+        blocks = -(-num_keys // 8)
+        return cls(
+            travel_m=np.full(blocks, style.travel_m), step_prob=np.full(blocks, style.step_prob),
+            turn_prob=np.full(blocks, style.turn_prob), turn_deg=style.turn_deg, level_m=np.zeros(blocks),
+        )  # fmt: skip
+
 
 VARIATION_SCALES = (0.0, 0.5, 1.0, 2.0, 4.0)
 """A block's travel and turning are the genre's usual amounts times one of these (drawn alike)."""
@@ -316,10 +325,11 @@ def _choreograph(
     ``basic`` (AIST++'s sBM) repeats one block's move throughout; otherwise (sFM) every block draws new moves.
     Per-dance variation: amplitude, which poses, their order, mirroring, step choices. ``variation`` (optional)
     sets each block's travel, turning and level (:func:`draw_variation`); without it every block has the genre's
-    own, and ``rng`` draws exactly what it drew before the option existed.
+    own (:meth:`BlockVariation.usual`), and ``rng`` draws exactly what it drew before the option existed.
     """
     deg = np.pi / 180.0
     k = num_keys
+    variation = variation or BlockVariation.usual(style, k)
     amp = rng.uniform(0.75, 1.25)  # the dancer's energy on this take
     height = style.pelvis_height_m + rng.uniform(-0.02, 0.02)
     width = style.stance_width_m * rng.uniform(0.9, 1.1)
@@ -393,15 +403,12 @@ def _choreograph(
         heel[b] = 0.0
         if style.heel_lift_deg > 0 and rng.random() < 0.5:
             heel[b, int(rng.integers(2))] = style.heel_lift_deg * deg
-        travel_m, step_prob, turn_prob, turn_deg = style.travel_m, style.step_prob, style.turn_prob, style.turn_deg
-        if variation is not None:
-            block = b // 8
-            travel_m, step_prob = variation.travel_m[block], variation.step_prob[block]
-            turn_prob, turn_deg = variation.turn_prob[block], variation.turn_deg
-        turning = rng.random() < turn_prob
+        block = b // 8
+        travel_m = variation.travel_m[block]
+        turning = rng.random() < variation.turn_prob[block]
         if turning:
-            yaw[b] = yaw[b - 1] + rng.choice([-1.0, 1.0]) * turn_deg * deg
-        if rng.random() >= step_prob and not turning:
+            yaw[b] = yaw[b - 1] + rng.choice([-1.0, 1.0]) * variation.turn_deg * deg
+        if rng.random() >= variation.step_prob[block] and not turning:
             weight[b] = 0.5 + rng.uniform(-0.2, 0.2)
             continue
         side = next_foot
@@ -442,8 +449,7 @@ def _choreograph(
         if np.linalg.norm(toe_xz[b, other] - anchor) > 0.45:
             anchor = 0.5 * (anchor + toe_xz[b, other])
 
-    if variation is not None:
-        level = level + np.repeat(variation.level_m, 8)[:k]
+    level = level + np.repeat(variation.level_m, 8)[:k]
     bounce = np.full(k - 1, -style.bounce_m * amp)
     pelvis_pitch = np.full(k, style.lean_deg * 0.5 * deg) + rng.normal(0, 2 * deg, k)
     return Keyframes(
