@@ -137,3 +137,55 @@ def channels_for_joints(
         start = ROTATION_CHANNELS.start + 6 * j
         channels += list(range(start, start + 6))
     return channels
+
+
+MIRROR_6D_SIGNS = (1.0, -1.0, -1.0, -1.0, 1.0, 1.0)
+"""A rotation R mirrored is M R M with M = diag(-1, 1, 1): entry (a, b) times m_a m_b, so the 6D channels (rows 0
+and 1 of R) change sign as these."""
+
+
+def mirror_partners(skeleton: Skeleton = SMPL24) -> list[int]:
+    """Each joint's mirror image: ``left_*`` and ``right_*`` joints exchanged, every other joint its own. ValueError
+    when a side's joint has no partner of the other side's name."""
+    index = {name: j for j, name in enumerate(skeleton.joint_names)}
+    partners = []
+    for name in skeleton.joint_names:
+        for side, other in (("left_", "right_"), ("right_", "left_")):
+            if name.startswith(side):
+                partner = other + name[len(side) :]
+                if partner not in index:
+                    raise ValueError(f"skeleton {skeleton.name!r}: joint {name!r} has no mirror joint {partner!r}")
+                partners.append(index[partner])
+                break
+        else:
+            partners.append(index[name])
+    return partners
+
+
+def mirror_pose(x: torch.Tensor, skeleton: Skeleton = SMPL24) -> torch.Tensor:
+    """Unnormalised pose vectors (..., 7 + 6 J) of the same dance mirrored left to right: every position reflected
+    in the vertical plane x = 0 (z-up; the plane of a dancer's forward and up axes at zero yaw, x being the body's
+    left), the left and right joints and foot contacts exchanged, and each rotation R made M R M (M = diag(-1, 1,
+    1): :data:`MIRROR_6D_SIGNS`, as the skeleton's left and right rest offsets mirror each other). The joints of the
+    result are the mirror image of the input's to within the rest offsets' own asymmetry (SMPL's: under 1 cm a
+    bone); mirrored twice, the input exactly. Returns a new tensor."""
+    check_pose_dim(x, skeleton)
+    n = skeleton.num_joints
+    contacts = x[..., [1, 0, 3, 2]]  # left ankle, right ankle, left toe, right toe
+    root = x[..., ROOT_CHANNELS] * x.new_tensor((-1.0, 1.0, 1.0))
+    sixd = x[..., rotation_channels(skeleton)].reshape(*x.shape[:-1], n, 6)
+    sixd = sixd[..., mirror_partners(skeleton), :] * x.new_tensor(MIRROR_6D_SIGNS)
+    return torch.cat((contacts, root, sixd.reshape(*x.shape[:-1], 6 * n)), dim=-1)
+
+
+def lateral_travel(x: torch.Tensor) -> torch.Tensor:
+    """How far the root of unnormalised pose vectors (..., T, C) gets towards the dancer's left over the T frames
+    (metres; negative: to the right): its horizontal displacement from the first frame to the last, along the
+    mean over the frames of the body's left axis (the root rotation's first column, on the floor), (...,)."""
+    shift = (
+        x[..., -1, ROOT_CHANNELS.start : ROOT_CHANNELS.start + 2]
+        - x[..., 0, ROOT_CHANNELS.start : ROOT_CHANNELS.start + 2]
+    )
+    r = ROTATION_CHANNELS.start  # the root's 6D rotation: rows 0 and 1, so R00 at r and R10 at r + 3
+    left = torch.stack((x[..., r], x[..., r + 3]), dim=-1).mean(dim=-2)
+    return (shift * torch.nn.functional.normalize(left, dim=-1)).sum(dim=-1)
