@@ -31,8 +31,7 @@ from dgsdp.errors import ConfigError, DataError, DgsdpError
 from dgsdp.metrics.attributes import RATE_MEASURES, movement_series
 from dgsdp.metrics.speed import SPEED_QUANTILES
 from dgsdp.motion import MinMaxNormalizer, Skeleton, measure_floor_height, skeleton_from_config
-from dgsdp.motion.representation import CONTACT_CHANNELS, lateral_travel, mirror_pose
-from dgsdp.motion.skeleton import SMPL24
+from dgsdp.motion.representation import CONTACT_CHANNELS
 from dgsdp.style.vocab import AISTPP_GENRES, GenreVocab
 from dgsdp.utils.io import DiskCache, file_hash
 
@@ -208,11 +207,7 @@ def check_tempo_augment(value: Any, has_features: bool) -> tuple[float, float] |
 
 class WindowDataset(Dataset):
     """Fixed-length windows over a list of sequences; motion normalised by ``normalizer``. With ``tempo_range``
-    (training, ``data.tempo_augment``) each window is played at a random tempo (:meth:`_stretched`). With
-    ``canonical_travel`` (``data.canonical_travel``) a window whose root ends up to the dancer's right of where it
-    began is mirrored left to right (:func:`~dgsdp.motion.representation.mirror_pose` on ``skeleton``), so that
-    every window travels to the dancer's left: a dance's direction of travel, drawn either way alike, no longer
-    averages its travel away (docs/style.md, "Travel one way")."""
+    (training, ``data.tempo_augment``) each window is played at a random tempo (:meth:`_stretched`)."""
 
     def __init__(
         self,
@@ -224,13 +219,9 @@ class WindowDataset(Dataset):
         fps: int = 30,
         waveform_sample_rate: int | None = None,
         tempo_range: tuple[float, float] | None = None,
-        canonical_travel: bool = False,
-        skeleton: Skeleton = SMPL24,
     ) -> None:
         self.sequences = sequences
         self.tempo_range = tempo_range
-        self.canonical_travel = canonical_travel
-        self.skeleton = skeleton
         self.normalizer = normalizer
         self.length = length
         self.fps = fps
@@ -261,8 +252,6 @@ class WindowDataset(Dataset):
             start, motion, audio, rate = self._stretched(seq, start)
         else:
             motion = torch.from_numpy(seq.motion[start : start + self.length])
-        if self.canonical_travel and float(lateral_travel(motion)) < 0:
-            motion = mirror_pose(motion, self.skeleton)
         item: dict[str, Any] = {
             "motion": self.normalizer.normalize(motion),
             "genre": seq.genre_index,
@@ -481,8 +470,7 @@ class DanceDataModule(L.LightningDataModule):
     only. If ``root`` has no dataset and ``synthetic`` is set, the synthetic dataset is generated there first, but
     only when asked: ``root`` is the synthetic dataset's own folder (``synthetic_root``) or ``generate_synthetic``
     is true. A mistyped ``data.root`` is an error, not a new dataset.
-    The normaliser is fitted on every frame of the training sequences (and their mirror images with
-    ``canonical_travel``: every window travels to the dancer's left, :class:`WindowDataset`). ``skeleton`` names the motion's skeleton
+    The normaliser is fitted on every frame of the training sequences. ``skeleton`` names the motion's skeleton
     (:func:`dgsdp.motion.skeleton_from_config`; SMPL-X ones read ``smplx_file``), recorded in the run spec.
     """
 
@@ -519,7 +507,6 @@ class DanceDataModule(L.LightningDataModule):
         smplx_file: str | None = None,
         movement_channels: tuple[str, ...] | list[str] = (),
         on_device: str | bool = "auto",
-        canonical_travel: bool = False,
     ) -> None:
         super().__init__()
         self.on_device = check_on_device(on_device)
@@ -537,7 +524,6 @@ class DanceDataModule(L.LightningDataModule):
                 "(the AIST++ layout holds SMPL poses); choose a dataset recorded on that skeleton"
             )
         self.tempo_augment = check_tempo_augment(tempo_augment, has_features=audio_encoder is not None)
-        self.canonical_travel = bool(canonical_travel)
         self.synthetic_root = None if synthetic_root is None else Path(synthetic_root).expanduser()
         self.generate_synthetic = bool(generate_synthetic)
         self.shuffle_seed = shuffle_seed
@@ -632,10 +618,7 @@ class DanceDataModule(L.LightningDataModule):
                 f"({self.skeleton.pose_dim} channels); check data.skeleton"
             )
         if not bool(self.normalizer.fitted):
-            frames = torch.from_numpy(np.concatenate([s.motion for s in train]))
-            if self.canonical_travel:  # mirrored windows stay within the fitted range
-                frames = torch.cat((frames, mirror_pose(frames, self.skeleton)))
-            self.normalizer.fit(frames)
+            self.normalizer.fit(torch.from_numpy(np.concatenate([s.motion for s in train])))
         if self.floor_height is None:
             self.floor_height = measure_floor_height([s.motion for s in train], skeleton=self.skeleton)
             log.info("floor height of the training motions: %.3f m", self.floor_height)
@@ -662,8 +645,6 @@ class DanceDataModule(L.LightningDataModule):
                 fps=self.fps,
                 waveform_sample_rate=self.waveform_sample_rate if self.audio_encoder is None else None,
                 tempo_range=self.tempo_augment if name == "train" else None,
-                canonical_travel=self.canonical_travel,
-                skeleton=self.skeleton,
             )
             short = count_short(ds.sequences, self.length)
             if short:

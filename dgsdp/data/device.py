@@ -43,8 +43,6 @@ def host_only_reason(dataset: Dataset) -> str | None:
     or None when they can be cut on the device."""
     if dataset.tempo_range is not None:
         return "windows played at a random tempo (data.tempo_augment) are resampled on the host"
-    if getattr(dataset, "canonical_travel", False):
-        return "windows mirrored to travel one way (data.canonical_travel) are made on the host"
     if dataset.waveform_sample_rate is not None:
         return "raw waveform windows (a waveform audio encoder) are cut on the host"
     return None
