@@ -16,32 +16,40 @@ EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
 # data.synthetic.offbeats, model.aligned_music, model.dropout, loss.root, style.prompts_file,
 # generation.style_text_temperature and style_text_reading: how generate.py reads free text with the row's model by
 # default, model.speed_conditioning, optimizer.schedule, model.movement_channels, optimizer.style_lr_scale,
-# data.synthetic.movement_variation)
+# data.synthetic.movement_variation, the window's frames: model.seq_len = data.window_seconds x 30)
 QUICKSTART_ROWS = {
-    "quickstart_row0": (0.0, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
-    "quickstart_row1": (2.964, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
-    "quickstart_row2": (2.964, True, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
-    "quickstart_row3": (2.964, True, True, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
-    "quickstart_row4": (2.964, True, False, 1000, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
-    "quickstart_row5": (2.964, True, False, 1000, 6.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
-    "quickstart_row6": (2.964, True, False, 1000, 6.0, [0.8, 1.25], True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
-    "quickstart_row7": (2.964, True, False, 1000, 6.0, None, False, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
-    "quickstart_row8": (2.964, True, False, 1000, 6.0, None, True, True, 0.1, 0.0, None, None, None, False, None, [], 1.0, False),
-    "quickstart_row9": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 0.0, None, None, None, False, None, [], 1.0, False),
-    "quickstart_row10": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False, None, [], 1.0, False),
-    "quickstart_row11": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, "aistpp_augmented", 0.02, None, False, None, [], 1.0, False),
-    "quickstart_row12": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False, None, [], 1.0, False),
-    "quickstart_row13": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [], 1.0, False),
-    "quickstart_row14": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [], 1.0, False),
+    "quickstart_row0": (0.0, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False, 150),
+    "quickstart_row1": (2.964, False, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False, 150),
+    "quickstart_row2": (2.964, True, False, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False, 150),
+    "quickstart_row3": (2.964, True, True, 500, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False, 150),
+    "quickstart_row4": (2.964, True, False, 1000, 0.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False, 150),
+    "quickstart_row5": (2.964, True, False, 1000, 6.0, None, True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False, 150),
+    "quickstart_row6": (2.964, True, False, 1000, 6.0, [0.8, 1.25], True, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False, 150),
+    "quickstart_row7": (2.964, True, False, 1000, 6.0, None, False, False, 0.1, 0.0, None, None, None, False, None, [], 1.0, False, 150),
+    "quickstart_row8": (2.964, True, False, 1000, 6.0, None, True, True, 0.1, 0.0, None, None, None, False, None, [], 1.0, False, 150),
+    "quickstart_row9": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 0.0, None, None, None, False, None, [], 1.0, False, 150),
+    "quickstart_row10": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False, None, [], 1.0, False, 150),
+    "quickstart_row11": (2.964, True, False, 4000, 6.0, None, True, False, 0.0, 10.0, "aistpp_augmented", 0.02, None, False, None, [], 1.0, False, 150),
+    "quickstart_row12": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, 0.02, None, False, None, [], 1.0, False, 150),
+    "quickstart_row13": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [], 1.0, False, 150),
+    "quickstart_row14": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [], 1.0, False, 150),
     "quickstart_row15": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True,
-                         {"warmup_steps": 50, "decay": "cosine", "final_lr_ratio": 0.05}, [], 1.0, False),
+                         {"warmup_steps": 50, "decay": "cosine", "final_lr_ratio": 0.05}, [], 1.0, False, 150),
     "quickstart_row16": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None,
-                         ["speed", "level", "arms", "travel", "turning"], 1.0, False),
+                         ["speed", "level", "arms", "travel", "turning"], 1.0, False, 150),
     "quickstart_row17": (2.964, True, False, 1000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [],
-                         10.0, False),
+                         10.0, False, 150),
     "quickstart_row18": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None,
-                         ["speed", "level", "arms", "travel", "turning"], 1.0, True),
+                         ["speed", "level", "arms", "travel", "turning"], 1.0, True, 150),
+    "quickstart_row19": (2.964, True, False, 3000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [],
+                         10.0, False, 60),
 }  # fmt: skip
+
+
+def _window_frames(cfg) -> int:
+    frames = round(cfg.data.window_seconds * cfg.data.fps)
+    assert cfg.model.seq_len == frames, "the model's window and the data's must be the same frames"
+    return frames
 
 
 def _row(cfg) -> tuple:
@@ -53,7 +61,7 @@ def _row(cfg) -> tuple:
         cfg.generation.style_text_reading, cfg.model.speed_conditioning,
         None if cfg.optimizer.get("schedule") is None else dict(cfg.optimizer.schedule),
         list(cfg.model.movement_channels), cfg.optimizer.get("style_lr_scale", 1.0),
-        cfg.data.synthetic.get("movement_variation", False),
+        cfg.data.synthetic.get("movement_variation", False), _window_frames(cfg),
     )  # fmt: skip
 
 
