@@ -297,7 +297,7 @@ class DanceGenerator:
         """The long-form window and stride (frames) that ``sampling`` gives this model."""
         sampling = sampling or SamplingSettings()
         window = min(sampling.window_frames or self.window, self.model.denoiser.seq_len)
-        return window, min(sampling.stride_frames, window)
+        return window, sampling.stride(window)
 
     def music_features(
         self, path: Path, seconds: float | None = None, sampling: SamplingSettings | None = None

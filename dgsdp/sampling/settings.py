@@ -39,7 +39,7 @@ class SamplingSettings:
     """Sampler ``method`` and ``steps``, DDIM ``eta``, guidance, long-form windows and batching.
 
     window_frames: None = the model's training window. stride_frames: consecutive long-form windows start this
-    far apart. longform: how the windows of a long dance agree (``fuse``: shared initial noise and fused x0
+    far apart (None: half the window, at most 75 frames, EDGE's 2.5 s: :meth:`stride`). longform: how the windows of a long dance agree (``fuse``: shared initial noise and fused x0
     predictions at every step; ``edge``: EDGE's overwrite of each window's first half by its neighbour after every
     step but the last; see :mod:`dgsdp.generation.longform`). clip_x0: the bound of x0 predictions in normalised
     units (None: the run's ``diffusion.clip_x0``; the papers: 1). project_rotations: ``root`` (the body's
@@ -58,7 +58,7 @@ class SamplingSettings:
     eta: float = 1.0  # DDIM only: stochasticity (1 = as stochastic as DDPM, 0 = deterministic)
     guidance: GuidanceSettings = field(default_factory=GuidanceSettings)
     window_frames: int | None = None
-    stride_frames: int = 75
+    stride_frames: int | None = None
     longform: str = "fuse"
     clip_x0: float | None = None
     # Where a model is unsure which way the body turns, its x0 prediction is the mean of the turns: a short 6D
@@ -86,8 +86,9 @@ class SamplingSettings:
         if not 0.0 <= float(self.eta) <= 1.0:
             raise ConfigError(f"sampling.eta must lie in [0, 1], got {self.eta}")
         for name in ("stride_frames", "batch_size"):
-            if int(getattr(self, name)) < 1:
-                raise ConfigError(f"sampling.{name} must be at least 1, got {getattr(self, name)}")
+            value = getattr(self, name)
+            if (value is not None or name == "batch_size") and int(value) < 1:
+                raise ConfigError(f"sampling.{name} must be at least 1, got {value}")
         if self.window_frames is not None and int(self.window_frames) < 1:
             raise ConfigError(f"sampling.window_frames must be at least 1 (or null), got {self.window_frames}")
         if self.longform not in LONGFORM_MODES:
@@ -111,6 +112,14 @@ class SamplingSettings:
             raise ConfigError("sampling.guidance.longform_ramp_fraction must lie in [0, 1]")
         if not 0.0 <= float(self.guidance.rescale) <= 1.0:
             raise ConfigError(f"sampling.guidance.rescale must lie in [0, 1], got {self.guidance.rescale}")
+
+    def stride(self, window: int) -> int:
+        """How far apart consecutive long-form windows of ``window`` frames start: ``stride_frames`` (at most the
+        window), or by default half the window and at most 75 frames (EDGE's 2.5 s), so that windows shorter
+        than 150 frames still overlap by half and a 150-frame window's neighbours start 75 frames apart."""
+        if self.stride_frames is not None:
+            return min(int(self.stride_frames), window)
+        return max(1, min(75, window // 2))
 
     @classmethod
     def from_config(cls, node: Any) -> SamplingSettings:

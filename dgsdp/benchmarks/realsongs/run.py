@@ -99,8 +99,7 @@ def run_benchmark(
         if settings.cleanup and settings.beat_sync
         else None,
     }
-    window = min(sampling.window_frames or generator.window, generator.model.denoiser.seq_len)
-    stride = min(sampling.stride_frames, window)
+    window, stride = generator.window_layout(sampling)
     floor = generator.floor_height if floor_m is None else float(floor_m)
     reference, train_source = training_figures(
         generator.spec, cfg.paths.cache_dir, floor_m=floor, window=window, stride=stride
