@@ -39,9 +39,9 @@ class SamplingSettings:
     """Sampler ``method`` and ``steps``, DDIM ``eta``, guidance, long-form windows and batching.
 
     window_frames: None = the model's training window. stride_frames: consecutive long-form windows start this
-    far apart (None: half the window, at most 75 frames, EDGE's 2.5 s: :meth:`stride`). longform: how the windows of a long dance agree (``fuse``: shared initial noise and fused x0
-    predictions at every step; ``edge``: EDGE's overwrite of each window's first half by its neighbour after every
-    step but the last; see :mod:`dgsdp.generation.longform`). clip_x0: the bound of x0 predictions in normalised
+    far apart (None: half the window, at most 75 frames, EDGE's 2.5 s: :meth:`stride`). longform: how the windows
+    of a long dance agree (``fuse``: shared initial noise and fused x0 predictions at every step; ``edge``:
+    EDGE's overwrite of each window's first half by its neighbour after every step but the last; see :mod:`dgsdp.generation.longform`). clip_x0: the bound of x0 predictions in normalised
     units (None: the run's ``diffusion.clip_x0``; the papers: 1). project_rotations: ``root`` (the body's
     orientation) or ``all`` joints' 6D rotations of every x0 prediction are made valid rotations (two orthonormal
     columns, :func:`~dgsdp.motion.project_rotations`) before the solver uses them; ``none``: as the network gives
@@ -85,10 +85,10 @@ class SamplingSettings:
             raise ConfigError(f"sampling.steps must be at least 1, got {self.steps}")
         if not 0.0 <= float(self.eta) <= 1.0:
             raise ConfigError(f"sampling.eta must lie in [0, 1], got {self.eta}")
-        for name in ("stride_frames", "batch_size"):
-            value = getattr(self, name)
-            if (value is not None or name == "batch_size") and int(value) < 1:
-                raise ConfigError(f"sampling.{name} must be at least 1, got {value}")
+        if self.stride_frames is not None and int(self.stride_frames) < 1:
+            raise ConfigError(f"sampling.stride_frames must be at least 1 (or null), got {self.stride_frames}")
+        if int(self.batch_size) < 1:
+            raise ConfigError(f"sampling.batch_size must be at least 1, got {self.batch_size}")
         if self.window_frames is not None and int(self.window_frames) < 1:
             raise ConfigError(f"sampling.window_frames must be at least 1 (or null), got {self.window_frames}")
         if self.longform not in LONGFORM_MODES:
