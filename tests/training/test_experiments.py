@@ -41,7 +41,7 @@ QUICKSTART_ROWS = {
                          10.0, False, 150),
     "quickstart_row18": (2.964, True, False, 6000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None,
                          ["speed", "level", "arms", "travel", "turning"], 1.0, True, 150),
-    "quickstart_row19": (2.964, True, False, 3000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [],
+    "quickstart_row19": (2.964, True, False, 2750, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [],
                          10.0, False, 60),
 }  # fmt: skip
 
