@@ -31,7 +31,7 @@ FREE_TEXT_STYLE = "sharp, powerful krump with heavy chest pops and arm swings"
 # choices below, with the style recipe's conditioning (rows 13-14: the root's own velocity term, the dance's speed as
 # a style channel, free text read by the router), the style's ways in at ten times the learning rate (row 17) and
 # 2 s windows for 2750 steps (row 19: 2.75 times the updates and windows of row 9's 1000 steps on 5 s windows,
-# in 1.17 times its wall time; genre by name 0.82 against 0.46 over three seeds, docs/style.md "Steps to quality").
+# in 1.13 times its wall time; genre by name 0.82 against 0.46 over three seeds, docs/style.md "Steps to quality").
 # Its steps are not the papers' long runs. Row 9's choices were each measured on the same data and seed
 # (docs/notes/2026-11-23-real-songs.md and docs/notes/2026-11-25-the-models-own-timing.md):
 # - Adan lr 1e-3 instead of 2e-4: the validation loss after 171 steps was 0.23 against 0.41;
