@@ -8,8 +8,8 @@
 4. prints where everything is, how long each stage took, and the generate.py command for your own songs.
 
 Extra arguments are Hydra overrides for the training run, e.g. ``python -m dgsdp.quickstart trainer.max_steps=50``.
-``experiment=<row>`` trains another recipe in place of row 19: ``python -m dgsdp.quickstart experiment=quickstart_row13``
-is the style recipe (6000 steps, 27 minutes on 2 CPU cores; docs/style.md).
+``experiment=<row>`` trains another recipe in place of row 19: ``python -m dgsdp.quickstart
+experiment=quickstart_row13`` is the style recipe (6000 steps, 27 minutes on 2 CPU cores; docs/style.md).
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ def _named_experiments(overrides: list[str]) -> list[str]:
 
 
 def training_experiment(overrides: list[str]) -> str:
-    """The experiment the training run uses: the last ``experiment=`` of the overrides, else the quick start's recipe."""
+    """The experiment the training run uses: the last ``experiment=`` of the overrides, else the quick start's."""
     named = _named_experiments(overrides)
     return named[-1] if named else QUICKSTART_EXPERIMENT
 

@@ -41,8 +41,9 @@ class SamplingSettings:
     window_frames: None = the model's training window. stride_frames: consecutive long-form windows start this
     far apart (None: half the window, at most 75 frames, EDGE's 2.5 s: :meth:`stride`). longform: how the windows
     of a long dance agree (``fuse``: shared initial noise and fused x0 predictions at every step; ``edge``:
-    EDGE's overwrite of each window's first half by its neighbour after every step but the last; see :mod:`dgsdp.generation.longform`). clip_x0: the bound of x0 predictions in normalised
-    units (None: the run's ``diffusion.clip_x0``; the papers: 1). project_rotations: ``root`` (the body's
+    EDGE's overwrite of each window's first half by its neighbour after every step but the last; see
+    :mod:`dgsdp.generation.longform`). clip_x0: the bound of x0 predictions in normalised units (None: the run's
+    ``diffusion.clip_x0``; the papers: 1). project_rotations: ``root`` (the body's
     orientation) or ``all`` joints' 6D rotations of every x0 prediction are made valid rotations (two orthonormal
     columns, :func:`~dgsdp.motion.project_rotations`) before the solver uses them; ``none``: as the network gives
     them (the papers). tempo_fold: the beats a model is given (a beat column, beat phase columns) are moved by
