@@ -129,6 +129,45 @@ def fuse_overlaps(x: torch.Tensor, n_windows: int, stride: int) -> torch.Tensor:
     return torch.stack([fused[:, i * stride : i * stride + length] for i in range(n_windows)], dim=1).reshape(x.shape)
 
 
+def align_facings(x: torch.Tensor, n_windows: int, stride: int) -> torch.Tensor:
+    """Turn each window about the vertical axis, and shift it over the floor, to agree with the window before it.
+
+    x: unnormalised pose vectors (S * n_windows, window, D) of any skeleton (D = 7 + 6 J), the windows of S samples
+    one after the other. Window i (i >= 1) is turned by the angle that best maps its body's facing on the frames it
+    shares with window i - 1 (already turned) onto that window's: the argument of the sum over those frames of
+    f_prev * conj(f_i), f the horizontal part of the body's forward axis as a complex number, so frames where the
+    body leans far get less say. Its root translation is turned by the same angle about the vertical axis and then
+    shifted so that its mean over the shared frames equals the earlier window's. Only the root rotation and the
+    root translation's horizontal part change, and linearly in the stored 6D rows, so the turn is exact for any 6D
+    vector. A dance is the same dance turned about the vertical, so each window keeps its own motion; fusing then
+    averages windows that face the same way instead of two facings up to 180 degrees apart (which the fusion's
+    weights sweep from one to the other within a few frames). Returns a new tensor.
+    """
+    overlap = x.shape[1] - stride
+    if n_windows < 2 or overlap <= 0:
+        return x
+    s = x.shape[0] // n_windows
+    w = x.reshape(s, n_windows, *x.shape[1:]).clone()
+    rot = slice(ROOT_CHANNELS.stop, ROOT_CHANNELS.stop + 6)  # the root's two stored rows r0, r1 (r2 is implied)
+    xy = slice(ROOT_CHANNELS.start, ROOT_CHANNELS.start + 2)
+    for i in range(1, n_windows):
+        prev, cur = w[:, i - 1, stride:], w[:, i, :overlap]
+        # The body's forward axis (column 2 of the root rotation): x = r0[2], y = r1[2].
+        f_prev = torch.complex(prev[..., rot][..., 2], prev[..., rot][..., 5])
+        f_cur = torch.complex(cur[..., rot][..., 2], cur[..., rot][..., 5])
+        turn = (f_prev * f_cur.conj()).sum(dim=1)
+        c = torch.where(turn.abs() > 0, turn.real / turn.abs().clamp_min(1e-12), torch.ones_like(turn.real))
+        sn = torch.where(turn.abs() > 0, turn.imag / turn.abs().clamp_min(1e-12), torch.zeros_like(turn.real))
+        c, sn = c[:, None, None], sn[:, None, None]
+        r0, r1 = w[:, i, :, rot][..., :3], w[:, i, :, rot][..., 3:]
+        w[:, i, :, rot] = torch.cat((c * r0 - sn * r1, sn * r0 + c * r1), dim=-1)
+        px, py = w[:, i, :, xy][..., :1], w[:, i, :, xy][..., 1:]
+        turned = torch.cat((c * px - sn * py, sn * px + c * py), dim=-1)
+        shift = (prev[..., xy] - turned[:, :overlap]).mean(dim=1, keepdim=True)
+        w[:, i, :, xy] = turned + shift
+    return w.reshape(x.shape)
+
+
 def stitch_windows(windows: torch.Tensor, stride: int) -> torch.Tensor:
     """Stitch unnormalised windows (n, L, D) of pose vectors (any skeleton's: D = 7 + 6 J) into one motion
     (L + stride * (n - 1), D).
@@ -293,6 +332,7 @@ def sample_items(
     longform: str = "fuse",
     clip_x0: float | None = None,
     project: str = "none",
+    align_facing: bool = False,
     device: torch.device | str = "cpu",
     progress: bool = False,
     windows: bool = False,
@@ -308,6 +348,8 @@ def sample_items(
     motion. A request with a seed draws its noise from it alone. ``clip_x0`` replaces the run's x0 bound.
     ``project`` (``root`` or ``all``; ``none`` = not) makes those 6D rotations of every x0 prediction valid
     rotations, after the fusion (:func:`~dgsdp.motion.project_rotations`; ``sampling.project_rotations``).
+    ``align_facing`` (``fuse`` only) turns each window of an unedited dance to face as its neighbour does on their
+    overlap before every fusion (:func:`align_facings`; ``sampling.align_facing``).
     ``windows=True`` returns each item's normalised windows (S, n_windows, window, D) instead, as sampled."""
     if not items:
         return []
@@ -380,8 +422,22 @@ def sample_items(
     edge = longform == "edge"
     fuse = long and not edge
 
+    unedited = [not (any_mask and given[i] is not None) for i in range(len(layouts))]
+    turn = fuse and align_facing and any(u and lay.n_windows > 1 for u, lay in zip(unedited, layouts))
+
+    def align(x0: torch.Tensor) -> torch.Tensor:
+        """Each unedited dance's windows turned to agree on their facing (an edited one keeps its given root)."""
+        parts = [x0[bounds[i] : bounds[i + 1]] for i in range(len(layouts))]
+        for i, layout in enumerate(layouts):
+            if unedited[i] and layout.n_windows > 1:
+                turned = align_facings(normalizer.unnormalize(parts[i]), layout.n_windows, stride)
+                parts[i] = normalizer.normalize(turned)
+        return torch.cat(parts)
+
     def shape_x0(x0: torch.Tensor) -> torch.Tensor:
-        """Fuse the windows' predictions and/or project their rotations onto valid ones."""
+        """Turn the windows to agree, fuse their predictions and/or project their rotations onto valid ones."""
+        if turn:
+            x0 = align(x0)
         if fuse:
             x0 = per_dance(fuse_overlaps, x0)
         if project == "none":

@@ -601,7 +601,8 @@ class DanceGenerator:
                     self.model.sampler(), self.model.normalizer, items, window=window, stride=stride,
                     method=sampling.method, steps=sampling.steps, eta=sampling.eta, guidance=guidance,
                     chunk_size=sampling.chunk_size, longform=sampling.longform, clip_x0=sampling.clip_x0,
-                    project=sampling.project_rotations, device=self.device, progress=progress, skeleton=self.skeleton,
+                    project=sampling.project_rotations, align_facing=sampling.align_facing,
+                    device=self.device, progress=progress, skeleton=self.skeleton,
                 )  # fmt: skip
             for i, motion in zip(batch, motions):
                 out[i] = motion.float().cpu()

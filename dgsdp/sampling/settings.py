@@ -67,6 +67,10 @@ class SamplingSettings:
     # commits to one turn. root, not all: all joints also slow the dances and cost the quick start's model some of
     # its raw timing (docs/sampling.md, "Rotations kept valid while sampling").
     project_rotations: str = "root"
+    # fuse only: before each fusion, every window of a dance is turned about the vertical (and shifted over the
+    # floor) to face as its neighbour does on their overlap, so the fusion averages windows that face the same way
+    # (dgsdp.generation.longform.align_facings; docs/sampling.md, "Windows turned to agree").
+    align_facing: bool = True
     # A song far faster (slower) than the model's training songs is given every other beat (a beat between beats):
     # half (double) time, the nearest the model knows. tempo_range_bpm: the training tempi [lo, hi] (null: as the
     # checkpoint recorded them). docs/sampling.md, "Songs faster than the training music".

@@ -8,8 +8,8 @@ from gen_helpers import AUDIO_DIM, random_motion
 
 from dgsdp.editing import build_mask
 from dgsdp.generation import WindowLayout, sample_long, share_overlaps, stitch_windows
-from dgsdp.generation.longform import DanceRequest, fuse_overlaps, overlap_weights, sample_items
-from dgsdp.motion import matrix_to_6d, pack_pose
+from dgsdp.generation.longform import DanceRequest, align_facings, fuse_overlaps, overlap_weights, sample_items
+from dgsdp.motion import matrix_to_6d, pack_pose, pose_to_joints, unpack_pose
 from dgsdp.sampling import Guidance
 
 
@@ -190,3 +190,76 @@ def test_stitch_keeps_values_the_windows_agree_on():
     motion = random_motion(300, seed=3)
     windows = torch.stack([motion[s : s + 150] for s in (0, 75, 150)])
     torch.testing.assert_close(stitch_windows(windows, 75), motion, atol=2e-6, rtol=0)
+
+
+def turned_about_z(motion: torch.Tensor, angle: float, shift: tuple[float, float]) -> torch.Tensor:
+    """The same dance turned by ``angle`` about the vertical through the origin, then moved ``shift`` (x, y)."""
+    parts = unpack_pose(motion)
+    turn = rot_z(torch.tensor(angle, dtype=motion.dtype))
+    rotmats = parts.rotmats.clone()
+    rotmats[:, 0] = turn @ rotmats[:, 0]
+    trans = parts.root_trans @ turn.T + torch.tensor([*shift, 0.0], dtype=motion.dtype)
+    return pack_pose(parts.contacts, trans, rotmats)
+
+
+def test_align_facings_undoes_a_turn_of_each_window():
+    """Windows cut from one dance, each but the first turned and moved by its own amount, are turned back onto
+    the dance (the same joints, not only the same facing); a window that already agrees is left as it is."""
+    motion = random_motion(300, seed=4).double()
+    starts, window, stride = (0, 75, 150), 150, 75
+    cut = torch.stack([motion[s : s + window] for s in starts])
+    turned = torch.stack([cut[0]] + [turned_about_z(w, a, sh) for w, a, sh in
+                                     zip(cut[1:], (2.5, -1.2), ((3.0, -1.0), (-0.5, 2.0)))])  # fmt: skip
+    assert (pose_to_joints(turned[1]) - pose_to_joints(cut[1])).norm(dim=-1).max() > 1.0
+    aligned = align_facings(turned, len(starts), stride)
+    torch.testing.assert_close(pose_to_joints(aligned), pose_to_joints(cut), atol=1e-9, rtol=0)
+    torch.testing.assert_close(aligned[..., 7:], cut[..., 7:], atol=1e-6, rtol=0)  # float32 rotations re-encoded
+    torch.testing.assert_close(align_facings(cut, len(starts), stride), cut, atol=1e-12, rtol=0)
+    torch.testing.assert_close(align_facings(turned[:1], 1, stride), turned[:1])
+
+
+def test_align_facings_agrees_with_the_mean_turn_of_the_overlap():
+    """Where the later window's facing differs from the earlier one's by a different angle on each shared frame
+    (the body upright), the turn is their circular mean, and the root's height and the joints below it are not
+    moved."""
+    window, stride = 6, 3
+    upright = torch.tensor([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]], dtype=torch.float64)  # body z (forward) -> world -y
+
+    def dance(angles: torch.Tensor, height: float) -> torch.Tensor:
+        rotmats = rot_z(angles)[:, None].expand(window, 24, 3, 3).clone()
+        rotmats[:, 0] = rot_z(angles) @ upright
+        return pack_pose(torch.zeros(window, 4), torch.tensor([0.0, 0.0, height]).expand(window, 3), rotmats)
+
+    def heading(x: torch.Tensor) -> torch.Tensor:
+        return torch.atan2(x[:, 7 + 5], x[:, 7 + 2])
+
+    angles = torch.tensor([0.0, 0.1, 0.2, 0.3, 0.4, 0.5], dtype=torch.float64)
+    offsets = torch.tensor([1.0, 1.2, 1.4], dtype=torch.float64)  # b lags a by these on the 3 shared frames
+    b_angles = torch.cat([angles[stride:] - offsets, angles[stride:] + 0.1 - offsets[-1]])
+    a, b = dance(angles, 0.0), dance(b_angles, 0.9)
+    out = align_facings(torch.stack([a, b]), 2, stride)
+    turn = torch.remainder(heading(out[1]) - heading(b) + math.pi, 2 * math.pi) - math.pi
+    torch.testing.assert_close(turn, torch.full((window,), 1.2, dtype=torch.float64), atol=1e-9, rtol=0)
+    torch.testing.assert_close(out[1, :, 6], b[:, 6])
+    torch.testing.assert_close(out[1, :, 13:], b[:, 13:])  # the other joints' rotations are untouched
+    torch.testing.assert_close(out[0], a)
+
+
+def test_align_facing_in_sampling_turns_unedited_dances_only(tiny_model):
+    """With ``align_facing`` the fused windows of an unedited dance are turned before each fusion (the random-init
+    model's windows face every way, so its dance changes), while an edited dance in the same batch is sampled as
+    without it (its given root decides where it faces)."""
+    n = 300
+    known = random_motion(400, seed=0)[:n]
+    mask = build_mask("joints", n, joints=["left_wrist", "head"])  # the root is not given: alignment would turn it
+    music = torch.randn(n, AUDIO_DIM)
+
+    def run(align: bool) -> list[torch.Tensor]:
+        requests = [DanceRequest(n, music=music, seed=0), DanceRequest(n, music=music, mask=mask, known=known, seed=1)]
+        return sample_items(tiny_model.sampler(), tiny_model.normalizer, requests, method="dpmpp_2m", steps=3,
+                            project="root", align_facing=align)  # fmt: skip
+
+    (plain, edited_plain), (turned, edited) = run(False), run(True)
+    assert torch.isfinite(turned).all() and (turned - plain).abs().max() > 1e-2
+    # every channel of the edited dance, not only the given ones (which are put back at the end anyway)
+    torch.testing.assert_close(edited, edited_plain, atol=1e-6, rtol=0)
