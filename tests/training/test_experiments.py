@@ -43,6 +43,8 @@ QUICKSTART_ROWS = {
                          ["speed", "level", "arms", "travel", "turning"], 1.0, True, 150),
     "quickstart_row19": (2.964, True, False, 2750, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [],
                          10.0, False, 60),
+    "quickstart_row20": (2.964, True, False, 3500, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [],
+                         10.0, False, 45),
 }  # fmt: skip
 
 
