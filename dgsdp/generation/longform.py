@@ -155,10 +155,8 @@ def align_facings(x: torch.Tensor, n_windows: int, stride: int) -> torch.Tensor:
         # The body's forward axis (column 2 of the root rotation): x = r0[2], y = r1[2].
         f_prev = torch.complex(prev[..., rot][..., 2], prev[..., rot][..., 5])
         f_cur = torch.complex(cur[..., rot][..., 2], cur[..., rot][..., 5])
-        turn = (f_prev * f_cur.conj()).sum(dim=1)
-        c = torch.where(turn.abs() > 0, turn.real / turn.abs().clamp_min(1e-12), torch.ones_like(turn.real))
-        sn = torch.where(turn.abs() > 0, turn.imag / turn.abs().clamp_min(1e-12), torch.zeros_like(turn.real))
-        c, sn = c[:, None, None], sn[:, None, None]
+        angle = torch.angle((f_prev * f_cur.conj()).sum(dim=1))[:, None, None]  # 0 where no frame has a facing
+        c, sn = torch.cos(angle), torch.sin(angle)
         r0, r1 = w[:, i, :, rot][..., :3], w[:, i, :, rot][..., 3:]
         w[:, i, :, rot] = torch.cat((c * r0 - sn * r1, sn * r0 + c * r1), dim=-1)
         px, py = w[:, i, :, xy][..., :1], w[:, i, :, xy][..., 1:]
@@ -422,8 +420,8 @@ def sample_items(
     edge = longform == "edge"
     fuse = long and not edge
 
+    turn = fuse and align_facing
     unedited = [not (any_mask and given[i] is not None) for i in range(len(layouts))]
-    turn = fuse and align_facing and any(u and lay.n_windows > 1 for u, lay in zip(unedited, layouts))
 
     def align(x0: torch.Tensor) -> torch.Tensor:
         """Each unedited dance's windows turned to agree on their facing (an edited one keeps its given root)."""
