@@ -142,9 +142,13 @@ def load_motion_pkl(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         raise DataError(
             f"motion file {path}: smpl_poses {poses.shape} and smpl_trans {trans.shape} should be (N, 72) and (N, 3)"
         )
-    if not np.isfinite(poses).all() or not np.isfinite(trans).all() or scaling <= 0:
-        raise DataError(f"motion file {path} has non-finite values or a non-positive smpl_scaling")
-    return poses, trans / scaling
+    if not np.isfinite(poses).all() or not np.isfinite(trans).all() or not (np.isfinite(scaling) and scaling > 0):
+        raise DataError(f"motion file {path} has non-finite values or a smpl_scaling that is not a positive number")
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        trans_m = trans / scaling
+    if not np.isfinite(trans_m).all():
+        raise DataError(f"motion file {path}: smpl_trans / smpl_scaling overflows (smpl_scaling {scaling!r})")
+    return poses, trans_m
 
 
 def process_motion(poses: np.ndarray, trans_m: np.ndarray, source_fps: int = SOURCE_FPS, fps: int = 30) -> np.ndarray:

@@ -165,6 +165,9 @@ BROKEN = {
     "object poses": (dict(smpl_poses=np.array([None] * 10, dtype=object)), "dtype 'O8'"),
     "nan poses": (dict(smpl_poses=np.full((10, 72), np.nan)), "non-finite"),
     "zero scaling": (dict(smpl_scaling=np.zeros(1)), "smpl_scaling"),
+    "nan scaling": (dict(smpl_scaling=np.full(1, np.nan)), "smpl_scaling"),
+    "infinite scaling": (dict(smpl_scaling=np.full(1, np.inf)), "smpl_scaling"),
+    "scaling that overflows": (dict(smpl_scaling=np.full(1, 1e-300)), "overflows"),
     "text scaling": (dict(smpl_scaling="big"), "numeric"),
 }
 
