@@ -138,21 +138,59 @@ class StyleBank:
         return cls(state["vectors"], state["genre_index"], int(state["n_genres"]))
 
 
+INCLUDE_KEY = "include"
+"""A prompts file's key naming other prompts files (shipped names or paths beside it) whose texts come first."""
+MAX_INCLUDE_DEPTH = 4
+
+
 def load_prompts(path: str | os.PathLike, vocab: GenreVocab = AISTPP_GENRES) -> list[list[str]]:
-    """Read a prompts yaml (``genre: [text, ...]``) -> one list of texts per genre, in vocabulary order."""
-    path = Path(path)
+    """Read a prompts yaml (``genre: [text, ...]``) -> one list of texts per genre, in vocabulary order. The file may
+    start from others (``include: [aistpp_augmented]``: shipped names, or paths relative to the file); their texts
+    come first, then the file's own."""
+    per_genre = _read_prompts(Path(path), vocab, ())
+    missing = [vocab.codes[g] for g, texts in enumerate(per_genre) if not texts]
+    if missing:
+        raise DataError(f"Style prompts file {path} has no descriptions for genre(s) {', '.join(missing)}.")
+    return per_genre
+
+
+def _included(name: str, includer: Path) -> Path:
+    """An included prompts file: beside the including one (with or without ``.yaml``), else a shipped name."""
+    beside = includer.parent / name
+    for candidate in (beside, beside.with_name(f"{beside.name}.yaml")):
+        if candidate.is_file():
+            return candidate
+    return resolve_prompts_file(name)
+
+
+def _read_prompts(path: Path, vocab: GenreVocab, chain: tuple[Path, ...]) -> list[list[str]]:
     if not path.is_file():
         shipped = ", ".join(sorted(p.stem for p in SHIPPED_PROMPTS_DIR.glob("*.yaml")))
+        where = f" (included by {chain[-1]})" if chain else ""
         raise DataError(
-            f"Style prompts file {path} does not exist; point style.prompts_file at a yaml file, or name a shipped "
-            f"one ({shipped})."
+            f"Style prompts file {path}{where} does not exist; point style.prompts_file at a yaml file, or name a "
+            f"shipped one ({shipped})."
+        )
+    if path.resolve() in chain or len(chain) >= MAX_INCLUDE_DEPTH:
+        raise DataError(
+            f"Style prompts file {path} includes itself or nests includes deeper than {MAX_INCLUDE_DEPTH} "
+            f"({' -> '.join(str(p) for p in chain)}); include each file once"
         )
     with open(path, encoding="utf-8") as f:
         data = yaml.safe_load(f)
     if not isinstance(data, Mapping):
         raise DataError(f"Style prompts file {path} must map each genre to a list of description texts.")
     per_genre: list[list[str]] = [[] for _ in range(len(vocab))]
+    includes = data.get(INCLUDE_KEY, [])
+    includes = [includes] if isinstance(includes, str) else includes
+    if not isinstance(includes, list) or not all(isinstance(i, str) and i.strip() for i in includes):
+        raise DataError(f"In style prompts file {path}: {INCLUDE_KEY} must name prompts files (a name or a list).")
+    for name in includes:
+        for g, texts in enumerate(_read_prompts(_included(name, path), vocab, (*chain, path.resolve()))):
+            per_genre[g].extend(texts)
     for key, texts in data.items():
+        if key == INCLUDE_KEY:
+            continue
         try:
             g = vocab.index(str(key))
         except ConfigError as e:
@@ -162,9 +200,6 @@ def load_prompts(path: str | os.PathLike, vocab: GenreVocab = AISTPP_GENRES) -> 
         if not isinstance(texts, list) or not all(isinstance(t, str) and t.strip() for t in texts):
             raise DataError(f"In style prompts file {path}: genre {key!r} must have a list of non-empty texts.")
         per_genre[g].extend(" ".join(t.split()) for t in texts)
-    missing = [vocab.codes[g] for g, texts in enumerate(per_genre) if not texts]
-    if missing:
-        raise DataError(f"Style prompts file {path} has no descriptions for genre(s) {', '.join(missing)}.")
     return per_genre
 
 

@@ -234,15 +234,19 @@ def test_the_shipped_movement_words_leave_out_the_benchmarks_wordings():
 
 
 @pytest.mark.timeout(300)
-def test_minilm_reads_the_shipped_descriptions_way():
-    """The shipped reader (MiniLM, the augmented descriptions): genre names go to their genre, a slower word reads
-    slower than a faster one for every genre, and a text about no dance is unknown."""
+@pytest.mark.parametrize(
+    "descriptions", [pytest.param("aistpp_augmented", marks=pytest.mark.slow), "aistpp_reader"]
+)  # the quick start reads through aistpp_reader; the style recipes before row 20 through aistpp_augmented
+def test_minilm_reads_the_shipped_descriptions_way(descriptions):
+    """The shipped reader (MiniLM, the augmented descriptions and the reader's, which add 24 a genre): genre names go
+    to their genre, a slower word reads slower than a faster one for every genre, and a text about no dance is
+    unknown."""
     from dgsdp.resources import RESOURCES_DIR
     from dgsdp.style import MiniLMTextEncoder
     from dgsdp.style.embeddings import load_prompts
     from dgsdp.style.vocab import AISTPP_GENRES
 
-    per_genre = load_prompts(RESOURCES_DIR / "style_prompts" / "aistpp_augmented.yaml", AISTPP_GENRES)
+    per_genre = load_prompts(RESOURCES_DIR / "style_prompts" / f"{descriptions}.yaml", AISTPP_GENRES)
     names = [n.lower() for n in AISTPP_GENRES.names]
     shipped = load_attributes()
     genre_and_energy = {k: shipped[k] for k in ("slow", "fast", "templates", "neutral_templates")}

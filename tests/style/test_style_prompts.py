@@ -73,3 +73,51 @@ def test_prompts_file_by_shipped_name_path_or_clear_error(tmp_path, monkeypatch)
         load_prompts(resolve_prompts_file("no_such_prompts"))
     embedder = StyleEmbedder(kind="onehot", prompts_file="finedance")
     assert embedder.prompts_file == DEFAULT_PROMPTS_FILE.parent / "finedance.yaml"
+
+
+def test_prompts_file_includes_others_first(tmp_path) -> None:
+    vocab = GenreVocab([("SA", "Salsa"), ("TA", "Tango")])
+    (tmp_path / "base.yaml").write_text("SA: [Quick hips.]\nTA: [Slow walks.]\n")
+    (tmp_path / "more.yaml").write_text("include: base\nSA: [Turns.]\n")
+    assert load_prompts(tmp_path / "more.yaml", vocab) == [["Quick hips.", "Turns."], ["Slow walks."]]
+    sub = tmp_path / "sub"
+    sub.mkdir()
+    (sub / "most.yaml").write_text("include: [../more.yaml]\nTA: [Sharp heads.]\n")  # a path beside the includer
+    assert load_prompts(sub / "most.yaml", vocab) == [["Quick hips.", "Turns."], ["Slow walks.", "Sharp heads."]]
+
+    (tmp_path / "loop_a.yaml").write_text("include: loop_b\nSA: [a]\nTA: [b]\n")
+    (tmp_path / "loop_b.yaml").write_text("include: loop_a\n")
+    with pytest.raises(DataError, match="includes itself"):
+        load_prompts(tmp_path / "loop_a.yaml", vocab)
+    (tmp_path / "lost.yaml").write_text("include: no_such_file\nSA: [a]\nTA: [b]\n")
+    with pytest.raises(DataError, match=r"no_such_file.*included by .*lost\.yaml"):
+        load_prompts(tmp_path / "lost.yaml", vocab)
+    (tmp_path / "bad.yaml").write_text("include: {a: 1}\nSA: [a]\nTA: [b]\n")
+    with pytest.raises(DataError, match="include must name prompts files"):
+        load_prompts(tmp_path / "bad.yaml", vocab)
+
+
+def test_reader_descriptions_add_movement_ones_to_the_augmented() -> None:
+    """The free-text reader's descriptions: the augmented ones first, then 24 more per genre that are new, distinct,
+    do not name their genre and are none of the style benchmark's held-out descriptions."""
+    from dgsdp.resources import RESOURCES_DIR
+    from dgsdp.style.embeddings import resolve_prompts_file
+
+    augmented = load_prompts(resolve_prompts_file("aistpp_augmented"))
+    reader = load_prompts(resolve_prompts_file("aistpp_reader"))
+    heldout = {
+        t.lower()
+        for path in sorted((RESOURCES_DIR / "style_heldout").glob("aistpp*.yaml"))
+        for texts in load_prompts(path)
+        for t in texts
+    }
+    everything = [t for texts in reader for t in texts]
+    assert len(set(everything)) == len(everything)
+    for code, name, ours, theirs in zip(AISTPP_GENRES.codes, AISTPP_GENRES.names, augmented, reader):
+        assert theirs[: len(ours)] == ours, code
+        added = theirs[len(ours) :]
+        assert len(added) == 24, code
+        own_words = {w for w in re.split(r"[\s-]+", name.lower()) if w not in ("style", "la-style", "la")}
+        for text in added:
+            assert text.lower() not in heldout, text
+            assert not own_words & set(re.findall(r"[a-z]+", text.lower())), (code, text)

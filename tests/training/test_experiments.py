@@ -146,6 +146,12 @@ def test_quickstart_rows_change_one_thing_each(name, tmp_path):
     # the quick start trains its experiment's row
     quick = compose_config("train", list(QUICKSTART_TRAINING), output_dir=tmp_path)
     assert _row(quick) == QUICKSTART_ROWS[QUICKSTART_EXPERIMENT]
+    # the descriptions free text is read through: the augmented ones, and from row 20 on 24 more per genre
+    descriptions = cfg.generation.style_text_descriptions
+    if cfg.generation.style_text_reading == "router" or cfg.generation.style_text_temperature is not None:
+        assert descriptions == ("aistpp_reader" if name == "quickstart_row20" else "aistpp_augmented")
+    else:
+        assert descriptions is None
 
 
 def test_edge_parameter_count_matches_paper(tmp_path):
