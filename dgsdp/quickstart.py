@@ -9,7 +9,8 @@
 
 Extra arguments are Hydra overrides for the training run, e.g. ``python -m dgsdp.quickstart trainer.max_steps=50``.
 ``experiment=<row>`` trains another recipe in place of row 20: ``python -m dgsdp.quickstart
-experiment=quickstart_row13`` is the style recipe (6000 steps, 27 minutes on 2 CPU cores; docs/style.md).
+experiment=quickstart_row21`` is the style recipe (row 20 for 12000 steps, about 25 minutes on 2 CPU cores;
+docs/style.md).
 """
 
 from __future__ import annotations
@@ -58,8 +59,8 @@ FREE_TEXT_STYLE = "sharp, powerful krump with heavy chest pops and arm swings"
 #   seed 0).
 QUICKSTART_EXPERIMENT = "quickstart_row20"
 QUICKSTART_TRAINING = (f"experiment={QUICKSTART_EXPERIMENT}",)  # its steps, 3500, are the recipe's
-# the style recipe: row 9 + loss.root=10, 6000 steps on 5 s windows, speed, router (docs/style.md)
-STYLE_EXPERIMENT = "quickstart_row13"
+# the style recipe: the quick start's row 20 for 12000 steps (docs/style.md)
+STYLE_EXPERIMENT = "quickstart_row21"
 
 
 def _named_experiments(overrides: list[str]) -> list[str]:
@@ -144,8 +145,8 @@ def main(argv: list[str] | None = None) -> int:
     print("      (the same as python generate.py ... from a checkout)")
     print(NEXT_HINT)
     if experiment == QUICKSTART_EXPERIMENT:
-        print(f"style:  python -m dgsdp.quickstart experiment={STYLE_EXPERIMENT} (about 30 minutes) trains the style\n"
-              "      recipe on 5 s windows, whose dances show an asked genre or description more often still\n"
+        print(f"style:  python -m dgsdp.quickstart experiment={STYLE_EXPERIMENT} (about 25 minutes) trains the same\n"
+              "      recipe for 12000 steps, whose dances show an asked genre or description more often still\n"
               "      (docs/style.md)")  # fmt: skip
     print(f"faster: dgsdp-train experiment={experiment} distill.teacher={checkpoint}\n"
           "      (from this folder, about 10 minutes) makes a student that samples in one pass per step: use it with\n"

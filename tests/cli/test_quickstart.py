@@ -20,9 +20,9 @@ def test_quickstart_runs_end_to_end_and_prints_its_stages(tmp_path, monkeypatch,
     assert [p.parent.name for p in dances] == ["free_text", "genre"]
 
 
-def test_quickstart_trains_row_19_unless_an_experiment_is_named():
+def test_quickstart_trains_row_20_unless_an_experiment_is_named():
     assert quickstart.training_overrides(["seed=1"]) == ["experiment=quickstart_row20", "seed=1"]
     assert quickstart.training_experiment(["seed=1"]) == "quickstart_row20"
-    ours = ["experiment=quickstart_row13", "seed=2"]
+    ours = ["experiment=quickstart_row21", "seed=2"]
     assert quickstart.training_overrides(ours) == ours  # one experiment, never two
-    assert quickstart.training_experiment(ours) == quickstart.STYLE_EXPERIMENT == "quickstart_row13"
+    assert quickstart.training_experiment(ours) == quickstart.STYLE_EXPERIMENT == "quickstart_row21"

@@ -45,6 +45,8 @@ QUICKSTART_ROWS = {
                          10.0, False, 60),
     "quickstart_row20": (2.964, True, False, 3500, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None, [],
                          10.0, False, 45),
+    "quickstart_row21": (2.964, True, False, 12000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None,
+                         [], 10.0, False, 45),
 }  # fmt: skip
 
 
@@ -149,7 +151,9 @@ def test_quickstart_rows_change_one_thing_each(name, tmp_path):
     # the descriptions free text is read through: the augmented ones, and from row 20 on 24 more per genre
     descriptions = cfg.generation.style_text_descriptions
     if cfg.generation.style_text_reading == "router" or cfg.generation.style_text_temperature is not None:
-        assert descriptions == ("aistpp_reader" if name == "quickstart_row20" else "aistpp_augmented")
+        assert descriptions == (
+            "aistpp_reader" if name in ("quickstart_row20", "quickstart_row21") else "aistpp_augmented"
+        )
     else:
         assert descriptions is None
 
