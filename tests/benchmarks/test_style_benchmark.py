@@ -69,9 +69,10 @@ def test_resolve_heldout_by_name_path_or_default(tmp_path):
 @pytest.mark.parametrize("heldout_file", HELDOUT_LISTS, ids=lambda f: f.stem)
 def test_heldout_descriptions_are_apart_from_training(heldout_file):
     heldout = load_prompts(heldout_file, AISTPP_GENRES)
-    # every shipped AIST++ training file: the prompts and their augmented set (quickstart_row11)
+    # every shipped AIST++ training file: the prompts, their augmented set (quickstart_row11) and the free-text
+    # reader's descriptions (quickstart_row20 on)
     files = sorted(STYLE_PROMPTS_FILE.parent.glob("aistpp*.yaml"))
-    assert [f.stem for f in files] == ["aistpp", "aistpp_augmented"]
+    assert [f.stem for f in files] == ["aistpp", "aistpp_augmented", "aistpp_reader"]
     training = [texts for f in files for texts in load_prompts(f, AISTPP_GENRES)]
     assert sb.HELDOUT_FILE.parent != STYLE_PROMPTS_FILE.parent  # nothing that trains reads this folder
     assert all(len(texts) >= 4 for texts in heldout)

@@ -98,19 +98,12 @@ def test_prompts_file_includes_others_first(tmp_path) -> None:
 
 
 def test_reader_descriptions_add_movement_ones_to_the_augmented() -> None:
-    """The free-text reader's descriptions: the augmented ones first, then 24 more per genre that are new, distinct,
-    do not name their genre and are none of the style benchmark's held-out descriptions."""
-    from dgsdp.resources import RESOURCES_DIR
+    """The free-text reader's descriptions: the augmented ones first, then 24 more per genre that are new, distinct
+    and do not name their genre (tests/benchmarks keeps them apart from the held-out descriptions)."""
     from dgsdp.style.embeddings import resolve_prompts_file
 
     augmented = load_prompts(resolve_prompts_file("aistpp_augmented"))
     reader = load_prompts(resolve_prompts_file("aistpp_reader"))
-    heldout = {
-        t.lower()
-        for path in sorted((RESOURCES_DIR / "style_heldout").glob("aistpp*.yaml"))
-        for texts in load_prompts(path)
-        for t in texts
-    }
     everything = [t for texts in reader for t in texts]
     assert len(set(everything)) == len(everything)
     for code, name, ours, theirs in zip(AISTPP_GENRES.codes, AISTPP_GENRES.names, augmented, reader):
@@ -119,5 +112,4 @@ def test_reader_descriptions_add_movement_ones_to_the_augmented() -> None:
         assert len(added) == 24, code
         own_words = {w for w in re.split(r"[\s-]+", name.lower()) if w not in ("style", "la-style", "la")}
         for text in added:
-            assert text.lower() not in heldout, text
             assert not own_words & set(re.findall(r"[a-z]+", text.lower())), (code, text)
