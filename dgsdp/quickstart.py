@@ -9,7 +9,7 @@
 
 Extra arguments are Hydra overrides for the training run, e.g. ``python -m dgsdp.quickstart trainer.max_steps=50``.
 ``experiment=<row>`` trains another recipe in place of row 20: ``python -m dgsdp.quickstart
-experiment=quickstart_row21`` is the style recipe (row 20 for 12000 steps, about 25 minutes on 2 CPU cores;
+experiment=quickstart_row21`` is the style recipe (row 20 for 12000 steps, 23 minutes on 2 CPU cores;
 docs/style.md).
 """
 
@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     print("      (the same as python generate.py ... from a checkout)")
     print(NEXT_HINT)
     if experiment == QUICKSTART_EXPERIMENT:
-        print(f"style:  python -m dgsdp.quickstart experiment={STYLE_EXPERIMENT} (about 25 minutes) trains the same\n"
+        print(f"style:  python -m dgsdp.quickstart experiment={STYLE_EXPERIMENT} (about 23 minutes) trains the same\n"
               "      recipe for 12000 steps, whose dances show an asked genre or description more often still\n"
               "      (docs/style.md)")  # fmt: skip
     print(f"faster: dgsdp-train experiment={experiment} distill.teacher={checkpoint}\n"
