@@ -122,6 +122,12 @@ def load_motion_pkl(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Read an AIST++ motion pickle. Returns (poses (N, 72) axis-angle, trans (N, 3) metres), 60 FPS, y-up."""
     path = Path(path)
     data = load_pickle(path, "motion file")  # plain data and numpy arrays only: never runs code from the file
+    return motion_from_pkl_data(data, path)
+
+
+def motion_from_pkl_data(data: object, path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """The checked (poses (N, 72), trans (N, 3) metres) of an AIST++ motion pickle's contents ``data``, as read
+    from ``path`` (named in the errors); see :func:`load_motion_pkl`."""
     if not isinstance(data, dict):
         raise DataError(f"motion file {path} holds a {type(data).__name__}, expected a dict with 'smpl_poses'")
     missing = [k for k in ("smpl_poses", "smpl_trans") if k not in data]

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dgsdp.data.aistpp import load_motion_pkl, process_motion
+from dgsdp.data.aistpp import motion_from_pkl_data, process_motion
 from dgsdp.errors import DataError
 from dgsdp.motion import SMPL24, Skeleton
 from dgsdp.safety.safe_pickle import load_pickle
@@ -73,7 +73,7 @@ def load_motion_file(path: str | os.PathLike, fps: int = 30, skeleton: Skeleton 
         source_fps = int(round(float(data.get("fps", AISTPP_SOURCE_FPS))))
     except (TypeError, ValueError, OverflowError) as e:
         raise DataError(f"motion file {path}: 'fps' must be a number, got {data.get('fps')!r}") from e
-    poses, trans_m = load_motion_pkl(path)
+    poses, trans_m = motion_from_pkl_data(data, path)
     if source_fps <= 0 or source_fps % fps:
         raise DataError(f"motion file {path} is at {source_fps} FPS, which is not a multiple of {fps} FPS")
     return torch.from_numpy(process_motion(poses, trans_m, source_fps=source_fps, fps=fps))
