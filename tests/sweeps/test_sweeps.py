@@ -16,7 +16,7 @@ EXPECTED = {
     "table3": {("edge", s) for s in range(3)} | {("dgsdp", s) for s in range(3)},
     "table4": {(f"table4_row{r}", s) for r in range(6) for s in range(3)},
     "table5": {(f"table5_row{r}", s) for r in range(1, 7) for s in range(3)},
-    "quickstart": {(f"quickstart_row{r}", s) for r in range(22) for s in range(3)},
+    "quickstart": {(f"quickstart_row{r}", s) for r in range(23) for s in range(3)},
 }
 EVALUATE = {"table1": "table1", "table2": "table2", "table3": "table3", "table4": "table1", "table5": "table1"}
 EVALUATE["quickstart"] = "table1"

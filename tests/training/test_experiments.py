@@ -47,6 +47,8 @@ QUICKSTART_ROWS = {
                          10.0, False, 45),
     "quickstart_row21": (2.964, True, False, 12000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None,
                          [], 10.0, False, 45),
+    "quickstart_row22": (2.964, True, False, 12000, 6.0, None, True, False, 0.0, 10.0, None, None, "router", True, None,
+                         ["speed", "level", "arms"], 10.0, False, 45),
 }  # fmt: skip
 
 
@@ -152,7 +154,9 @@ def test_quickstart_rows_change_one_thing_each(name, tmp_path):
     descriptions = cfg.generation.style_text_descriptions
     if cfg.generation.style_text_reading == "router" or cfg.generation.style_text_temperature is not None:
         assert descriptions == (
-            "aistpp_reader" if name in ("quickstart_row20", "quickstart_row21") else "aistpp_augmented"
+            "aistpp_reader"
+            if name in ("quickstart_row20", "quickstart_row21", "quickstart_row22")
+            else "aistpp_augmented"
         )
     else:
         assert descriptions is None
